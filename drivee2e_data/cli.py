@@ -1,0 +1,118 @@
+"""The `drivee2e` command: parses arguments, calls the library, prints. No logic of its own."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from tqdm import tqdm
+
+from drivee2e_data import __version__, datasets
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.scenario import AgentClass
+
+CLASS_ABBREVIATION = {
+    AgentClass.CAR: "car",
+    AgentClass.VAN: "van",
+    AgentClass.TRUCK: "trk",
+    AgentClass.BUS: "bus",
+    AgentClass.PEDESTRIAN: "ped",
+    AgentClass.CYCLIST: "cyc",
+    AgentClass.TRICYCLIST: "tri",
+    AgentClass.MOTORCYCLIST: "mot",
+}
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="drivee2e",
+        description="Real intersection traffic to simulated expert data and a closed-loop benchmark.",
+    )
+    parser.add_argument("--version", action="version", version=f"drivee2e-data {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    synth = commands.add_parser("synth", help="synthesise intersections and staged clips")
+    synth.add_argument("--out", type=Path, required=True, help="data root to write into")
+    synth.add_argument("--clips", type=_positive, default=12, help="number of clips (default 12)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    synth.add_argument(
+        "--intersections",
+        type=_positive,
+        default=None,
+        help="number of distinct intersections (default: min(clips, 4))",
+    )
+
+    scenarios = commands.add_parser(
+        "scenarios", help="list and validate the scenarios of a data root"
+    )
+    scenarios.add_argument("data", type=Path, help="data root")
+    return parser
+
+
+def _synth(args: argparse.Namespace) -> int:
+    with tqdm(total=args.clips, unit="clip", desc="synthesising", file=sys.stderr) as bar:
+        report = datasets.synthesize(
+            args.out,
+            args.clips,
+            args.seed,
+            args.intersections,
+            on_clip=lambda scenario_id, skipped: bar.update(1),
+        )
+    print(
+        f"{len(report.written)} clips written, {len(report.skipped)} already present, "
+        f"{len(report.maps)} maps, under {args.out}"
+    )
+    return 0
+
+
+def _scenarios(args: argparse.Namespace) -> int:
+    if not (args.data / "scenarios").is_dir():
+        raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
+    with tqdm(unit="scenario", desc="reading", file=sys.stderr, leave=False) as bar:
+        summaries = datasets.summarize(args.data, on_scenario=lambda _: bar.update(1))
+    header = ("scenario", "map", "dur s", "agents", "ego", "behaviour", "weather", "time of day")
+    rows = [
+        (
+            s.scenario_id,
+            s.map_id,
+            f"{s.duration_s:.1f}",
+            " ".join(f"{CLASS_ABBREVIATION[c]}{n}" for c, n in s.agents.items() if n),
+            s.ego_id or "-",
+            s.behavior,
+            s.weather,
+            s.time_of_day,
+        )
+        for s in summaries
+    ]
+    widths = [max(len(str(r[k])) for r in [header, *rows]) for k in range(len(header))]
+    for row in [header, *rows]:
+        print(
+            "  ".join(
+                str(cell).ljust(width) for cell, width in zip(row, widths, strict=True)
+            ).rstrip()
+        )
+    print(f"{len(rows)} scenarios")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    handlers = {"synth": _synth, "scenarios": _scenarios}
+    try:
+        return handlers[args.command](args)
+    except DriveE2EError as error:
+        print(f"drivee2e: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

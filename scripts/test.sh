@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Install everything, lint, and run the test suite. Fails on any failure.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install.sh
+.venv/bin/ruff check .
+.venv/bin/ruff format --check .
+.venv/bin/python -m pytest -q
