@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _synth(args: argparse.Namespace) -> int:
-    with tqdm(total=args.clips, unit="clip", desc="synthesising", file=sys.stderr) as bar:
+    with tqdm(total=args.clips, unit="clip", desc="synthesising", disable=None) as bar:
         report = datasets.synthesize(
             args.out,
             args.clips,
@@ -77,7 +77,7 @@ def _synth(args: argparse.Namespace) -> int:
 def _scenarios(args: argparse.Namespace) -> int:
     if not (args.data / "scenarios").is_dir():
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
-    with tqdm(unit="scenario", desc="reading", file=sys.stderr, leave=False) as bar:
+    with tqdm(unit="scenario", desc="reading", leave=False, disable=None) as bar:
         summaries = datasets.summarize(args.data, on_scenario=lambda _: bar.update(1))
     header = ("scenario", "map", "dur s", "agents", "ego", "behaviour", "weather", "time of day")
     rows = [

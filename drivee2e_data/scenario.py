@@ -181,7 +181,7 @@ _TRACK_ARRAYS = (
 class Track(ArrayValueEq):
     """One agent over the scenario timeline; every array is `(T,)` with T the scenario's frames.
 
-    Values at frames where `valid` is False carry no meaning (NaN by convention).
+    Values at frames where `valid` is False carry no meaning and are set to NaN.
     `metadata` holds source-specific facts as strings (blueprint, size source, violator flag).
     """
 
@@ -224,6 +224,8 @@ class Track(ArrayValueEq):
                 raise ScenarioFormatError(
                     f"{where}: {name} is {values[bad[0]]} at frame {bad[0]}, expected a finite value"
                 )
+            if not valid.all():  # values at invalid frames mean nothing: store NaN there
+                values = frozen_array(np.where(valid, values, np.nan), np.float64)
             object.__setattr__(self, name, values)
         for name in ("length_m", "width_m", "height_m"):
             bad = np.flatnonzero(valid & (getattr(self, name) <= 0))

@@ -134,6 +134,7 @@ def _scenario(
             metadata = {
                 "lanes": ",".join(lane for lane, _, _ in path.lanes),
                 "movement": path.movement.turn.value,
+                "signal": path.movement.signal_id,
                 "runs_yellow": str(spec.runs_yellow).lower(),
             }
         else:

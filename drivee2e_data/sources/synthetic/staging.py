@@ -41,6 +41,7 @@ MAX_CLIP_S = 30.0
 MAX_ATTEMPTS = 8
 MAX_REPAIRS = 8
 NEAR_PEDESTRIAN_M = 3.0  # a pedestrian this close to the ego's box counts as an interaction
+QUEUE_REACH_M = 40.0  # an ego stopped this close to a red stop line is stopping at red
 MIN_BINDING_STEPS = 3  # a constraint must bind this many steps (0.3 s) to count as yielding
 
 TURN_OF = {
@@ -402,7 +403,12 @@ def observe(
     if yielded_vehicle or int(others_yielded) >= MIN_BINDING_STEPS:
         return SubScenario(f"COV-{turn_name[movement.turn]}")
 
-    stopped_at_red = bool(np.any((constraint == Constraint.RED) & (speed < 0.3)))
+    # Stopped before the line while the light is red: at the line, or queued behind others.
+    path = network.paths[ego.movement_id]
+    front = result.s_m[ego_row, window] + 0.5 * ego.length_m
+    red = result.signal_states[movement.signal_id][window] == SignalState.RED
+    waiting = (front < path.stop_s_m) & (path.stop_s_m - front < QUEUE_REACH_M)
+    stopped_at_red = bool(np.any(red & waiting & (speed < 0.3)))
     if stopped_at_red:
         return SubScenario.STP
     return SubScenario(turn_name[movement.turn])

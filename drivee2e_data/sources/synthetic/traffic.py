@@ -478,7 +478,7 @@ class TrafficSimulation:
                 signal_id = path.movement.signal_id
                 state_now = SignalState(int(result.signal_states[signal_id][step]))
                 result.stop_line_state[spec.agent_id] = (step, state_now)
-            if s[i] - 0.5 * spec.length_m >= path.length_m - 1.0:
+            if s[i] + 0.5 * spec.length_m >= path.length_m:  # leaves the map whole
                 state[i] = 2
             x, y, heading = path.pose_at(s[i])
             self.vehicle_xy[i] = (x, y)

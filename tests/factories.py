@@ -1,0 +1,76 @@
+"""Small hand-built scenarios and maps for tests."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+
+import numpy as np
+
+from drivee2e_data.hdmap import GeoOrigin, IntersectionMap, Lane, SignalHead
+from drivee2e_data.scenario import (
+    FRAME_PERIOD_NS,
+    AgentClass,
+    Conditions,
+    Scenario,
+    SignalState,
+    SignalTimeline,
+    TimeOfDay,
+    Track,
+    Weather,
+)
+
+T0_NS = 1_780_000_000_000_000_000
+
+
+def straight_track(
+    track_id: str = "a", frames: int = 5, agent_class: AgentClass = AgentClass.CAR, **overrides
+) -> Track:
+    """A car driving east at 10 m/s from the origin."""
+    t = np.arange(frames) * 0.1
+    fields = dict(
+        x_m=10.0 * t,
+        y_m=np.zeros(frames),
+        z_m=np.full(frames, 0.75),
+        yaw_rad=np.zeros(frames),
+        length_m=np.full(frames, 4.5),
+        width_m=np.full(frames, 1.8),
+        height_m=np.full(frames, 1.5),
+        vx_mps=np.full(frames, 10.0),
+        vy_mps=np.zeros(frames),
+        valid=np.ones(frames, bool),
+    )
+    fields.update(overrides)
+    return Track(track_id=track_id, agent_class=agent_class, **fields)
+
+
+def small_scenario(frames: int = 5, **overrides) -> Scenario:
+    fields = dict(
+        scenario_id="tiny",
+        map_id="tiny_map",
+        source="test",
+        t_ns=T0_NS + FRAME_PERIOD_NS * np.arange(frames, dtype=np.int64),
+        tracks=(straight_track("a", frames), straight_track("b", frames, AgentClass.PEDESTRIAN)),
+        signals=(SignalTimeline("s1", np.full(frames, SignalState.GREEN.value, np.uint8)),),
+        conditions=Conditions(
+            Weather.RAIN, TimeOfDay.NIGHT, datetime(2026, 5, 1, 13, tzinfo=timezone.utc)
+        ),
+        ego_id="a",
+    )
+    fields.update(overrides)
+    return Scenario(**fields)
+
+
+def small_map(**overrides) -> IntersectionMap:
+    centre = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0]])
+    half_width = np.array([0.0, 1.75, 0.0])
+    lane = Lane("l1", centre, centre + half_width, centre - half_width, signal_id="s1")
+    fields = dict(
+        map_id="tiny_map",
+        origin=GeoOrigin(39.9, 116.4, 40.0),
+        lanes=(lane,),
+        signal_heads=(
+            SignalHead("h1", "s1", np.array([55.0, 2.0, 5.0]), np.pi, controlled_lane_ids=("l1",)),
+        ),
+    )
+    fields.update(overrides)
+    return IntersectionMap(**fields)
