@@ -122,11 +122,11 @@ def _scenario(
     frames = staged.last_step - staged.first_step + 1
     t0_ns = int(conditions.start_time_utc.timestamp()) * 1_000_000_000
     vehicle_count = len(staged.vehicles)
+    names = _track_names(staged, window)
     tracks = []
-    for row, agent_id in enumerate(result.agent_ids):
+    for row in sorted(names, key=lambda r: names[r]):
+        agent_id = names[row]
         valid = result.valid[row, window]
-        if not valid.any():
-            continue
         if row < vehicle_count:
             spec = staged.vehicles[row]
             agent_class, size = spec.agent_class, (spec.length_m, spec.width_m, spec.height_m)
@@ -167,7 +167,7 @@ def _scenario(
         SignalTimeline(signal_id, states[window], origin="synthetic")
         for signal_id, states in result.signal_states.items()
     )
-    ego_id = result.agent_ids[staged.ego_row]
+    ego_id = names[staged.ego_row]
     ego_path = site.network.paths[staged.vehicles[staged.ego_row].movement_id]
     ego_xy = np.stack([result.x_m[staged.ego_row, window], result.y_m[staged.ego_row, window]], -1)
     return Scenario(
@@ -191,6 +191,20 @@ def _scenario(
             "clip_start_sim_s": round(staged.first_step * 0.1, 1),
         },
     )
+
+
+def _track_names(staged: StagedClip, window: slice) -> dict[int, str]:
+    """Track ids for the sim rows seen in the clip: 'v0000'.. and 'p0000'.. in order of appearance,
+    so nothing in an id tells which vehicle is the ego."""
+    valid = staged.result.valid[:, window]
+    seen = [row for row in range(valid.shape[0]) if valid[row].any()]
+    order = sorted(seen, key=lambda row: (int(np.argmax(valid[row])), staged.result.agent_ids[row]))
+    vehicle_count = len(staged.vehicles)
+    names: dict[int, str] = {}
+    for row in order:
+        prefix = "v" if row < vehicle_count else "p"
+        names[row] = f"{prefix}{sum(1 for n in names.values() if n[0] == prefix):04d}"
+    return names
 
 
 def _route_waypoints(xy_m: np.ndarray) -> np.ndarray:
