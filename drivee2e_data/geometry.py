@@ -153,3 +153,17 @@ def boxes_overlap(corners_a: FloatArray, corners_b: FloatArray) -> NDArray[np.bo
             apart = (proj_a.max(-1) <= proj_b.min(-1)) | (proj_b.max(-1) <= proj_a.min(-1))
             overlap &= ~apart
     return overlap
+
+
+def centerline_between(left_m: FloatArray, right_m: FloatArray) -> FloatArray:
+    """Centre line `(M, D)` of two boundaries given in the same direction: their mean after
+    resampling both at equal arclength fractions (M = the larger point count, at least 10)."""
+    count = max(len(left_m), len(right_m), 10)
+    fractions = np.linspace(0.0, 1.0, count)
+
+    def at(points: FloatArray) -> FloatArray:
+        s = polyline_arclength(points)
+        s = s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, len(points))
+        return np.stack([np.interp(fractions, s, points[:, d]) for d in range(points.shape[1])], -1)
+
+    return 0.5 * (at(left_m) + at(right_m))

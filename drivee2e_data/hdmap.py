@@ -190,6 +190,18 @@ class Area(ArrayValueEq):
 
 
 @dataclass(frozen=True, eq=False)
+class Kerb(ArrayValueEq):
+    """A kerb line `(N, 3)` between road and a raised area, `height_m` above the road."""
+
+    kerb_id: str
+    line_m: NDArray[np.float64]
+    height_m: float = 0.15
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "line_m", _polyline(f"kerb {self.kerb_id!r}", self.line_m))
+
+
+@dataclass(frozen=True, eq=False)
 class Building(ArrayValueEq):
     """A building footprint `(N, 2)` extruded to `height_m`; `generated` when not from the source."""
 
@@ -271,6 +283,7 @@ class IntersectionMap(ArrayValueEq):
     stop_lines: tuple[StopLine, ...] = ()
     drivable_areas: tuple[Area, ...] = ()
     sidewalks: tuple[Area, ...] = ()
+    kerbs: tuple[Kerb, ...] = ()
     buildings: tuple[Building, ...] = ()
     trees: tuple[Tree, ...] = ()
     signal_heads: tuple[SignalHead, ...] = ()
@@ -286,6 +299,7 @@ class IntersectionMap(ArrayValueEq):
             "stop_lines",
             "drivable_areas",
             "sidewalks",
+            "kerbs",
             "buildings",
             "trees",
             "signal_heads",
@@ -296,6 +310,7 @@ class IntersectionMap(ArrayValueEq):
         _unique("crosswalk", (c.crosswalk_id for c in self.crosswalks))
         _unique("stop line", (s.stop_line_id for s in self.stop_lines))
         _unique("area", (a.area_id for a in (*self.drivable_areas, *self.sidewalks)))
+        _unique("kerb", (k.kerb_id for k in self.kerbs))
         _unique("building", (b.building_id for b in self.buildings))
         _unique("tree", (t.tree_id for t in self.trees))
         _unique("signal head", (h.head_id for h in self.signal_heads))

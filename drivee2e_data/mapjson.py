@@ -14,6 +14,7 @@ from drivee2e_data.hdmap import (
     Crosswalk,
     GeoOrigin,
     IntersectionMap,
+    Kerb,
     Lane,
     LaneMark,
     LaneType,
@@ -71,6 +72,9 @@ def map_to_dict(intersection_map: IntersectionMap) -> dict[str, Any]:
         ],
         "drivable_areas": [_area(a) for a in m.drivable_areas],
         "sidewalks": [_area(a) for a in m.sidewalks],
+        "kerbs": [
+            {"id": k.kerb_id, "line_m": k.line_m.tolist(), "height_m": k.height_m} for k in m.kerbs
+        ],
         "buildings": [
             {
                 "id": b.building_id,
@@ -205,6 +209,10 @@ def map_from_dict(document: dict[str, Any], where: str = "map") -> IntersectionM
             ),
             drivable_areas=tuple(_area_from(r) for r in root.items("drivable_areas")),
             sidewalks=tuple(_area_from(r) for r in root.items("sidewalks")),
+            kerbs=tuple(
+                Kerb(r.get("id", str), r.get("line_m", _array), r.get("height_m", float, 0.15))
+                for r in root.items("kerbs")
+            ),
             buildings=tuple(
                 Building(
                     r.get("id", str),
