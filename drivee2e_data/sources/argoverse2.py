@@ -97,10 +97,21 @@ SENSOR_CLASSES: dict[str, AgentClass | None] = {
     "MOTORCYCLE": AgentClass.MOTORCYCLIST,  # when moving, likewise
 }
 STATIC_KINDS = {
-    "BOLLARD", "CONSTRUCTION_CONE", "CONSTRUCTION_BARREL", "SIGN", "STOP_SIGN", "MESSAGE_BOARD_TRAILER",
-    "MOBILE_PEDESTRIAN_CROSSING_SIGN", "TRAFFIC_LIGHT_TRAILER", "STROLLER", "WHEELCHAIR",
-    "WHEELED_DEVICE", "BICYCLE", "MOTORCYCLE", "VEHICULAR_TRAILER",
-}  # fmt: skip
+    "BOLLARD",
+    "CONSTRUCTION_CONE",
+    "CONSTRUCTION_BARREL",
+    "SIGN",
+    "STOP_SIGN",
+    "MESSAGE_BOARD_TRAILER",
+    "MOBILE_PEDESTRIAN_CROSSING_SIGN",
+    "TRAFFIC_LIGHT_TRAILER",
+    "STROLLER",
+    "WHEELCHAIR",
+    "WHEELED_DEVICE",
+    "BICYCLE",
+    "MOTORCYCLE",
+    "VEHICULAR_TRAILER",
+}
 DROP_REASONS = {
     "BICYCLIST": "rider of a BICYCLE cuboid, which carries the cyclist",
     "MOTORCYCLIST": "rider of a MOTORCYCLE cuboid, which carries the motorcyclist",
@@ -239,7 +250,7 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
                     frame.to_local(_points(c["edge2"], f"{path} crosswalk {k}"))[::-1, :2],
                 ]
             ),
-        )  # fmt: skip
+        )
         for k, c in document["pedestrian_crossings"].items()
     )
     areas = tuple(
@@ -256,7 +267,7 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
             np.stack([lane.left_boundary_m[-1], lane.right_boundary_m[-1]]),
             (lane.lane_id,),
             derived=True,
-        )  # fmt: skip
+        )
         for lane in lanes
         if not lane.is_intersection
         and lane.lane_type == LaneType.VEHICLE
@@ -274,7 +285,7 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
             "city": frame.city,
             "city_offset_m": frame.offset_m.tolist(),
             "stop_lines": "derived where lanes enter the intersection",
-        },  # fmt: skip
+        },
     )
 
 
@@ -314,8 +325,20 @@ def _clip_to_map(track: Track, reach: shapely.Geometry) -> Track | None:
         return None
     if inside.all() or np.array_equal(inside, track.valid):
         return track
-    fields = {name: getattr(track, name) for name in ("x_m", "y_m", "z_m", "yaw_rad", "length_m", "width_m",
-                                                      "height_m", "vx_mps", "vy_mps")}  # fmt: skip
+    fields = {
+        name: getattr(track, name)
+        for name in (
+            "x_m",
+            "y_m",
+            "z_m",
+            "yaw_rad",
+            "length_m",
+            "width_m",
+            "height_m",
+            "vx_mps",
+            "vy_mps",
+        )
+    }
     return Track(track.track_id, track.agent_class, valid=inside, metadata=track.metadata, **fields)
 
 
@@ -345,7 +368,7 @@ def import_sensor_log(folder: Path) -> Imported:
     poses = _read_feather(folder / "city_SE3_egovehicle.feather", POSE_COLUMNS)
     annotations = _read_feather(
         folder / "annotations.feather",
-        POSE_COLUMNS + ["track_uuid", "category", "length_m", "width_m", "height_m"],
+        [*POSE_COLUMNS, "track_uuid", "category", "length_m", "width_m", "height_m"],
     )
     map_file = _map_file(folder / "map")
     city = _city_of_map(map_file)
@@ -370,12 +393,20 @@ def import_sensor_log(folder: Path) -> Imported:
     ego_centre[:, 2] += 0.5 * RECORDING_CAR_SIZE_M[2]
     within = (pose_t >= grid[0] - FRAME_PERIOD_NS) & (pose_t <= grid[-1] + FRAME_PERIOD_NS)
     ego_track = resample_track(
-        RECORDING_CAR_ID, AgentClass.CAR, pose_t[within], frame.to_local(ego_centre[within])[:, :2],
-        frame.to_local(ego_centre[within])[:, 2], yaw_from_quaternion(pose_q[within]),
-        np.tile(RECORDING_CAR_SIZE_M, (int(within.sum()), 1)), grid,
-        {"role": "recording car", "rear_axle_to_centre_m": str(REAR_AXLE_TO_CENTRE_M),
-         "size_source": "vehicle model (Ford Fusion Hybrid)"},
-    )  # fmt: skip
+        RECORDING_CAR_ID,
+        AgentClass.CAR,
+        pose_t[within],
+        frame.to_local(ego_centre[within])[:, :2],
+        frame.to_local(ego_centre[within])[:, 2],
+        yaw_from_quaternion(pose_q[within]),
+        np.tile(RECORDING_CAR_SIZE_M, (int(within.sum()), 1)),
+        grid,
+        {
+            "role": "recording car",
+            "rear_axle_to_centre_m": str(REAR_AXLE_TO_CENTRE_M),
+            "size_source": "vehicle model (Ford Fusion Hybrid)",
+        },
+    )
     if ego_track is not None:
         tracks.append(ego_track)
         report.keep("RECORDING_CAR", AgentClass.CAR)
@@ -414,9 +445,14 @@ def import_sensor_log(folder: Path) -> Imported:
             if category in STATIC_KINDS and not moving:
                 middle = rows[len(rows) // 2]
                 obstacles.append(
-                    StaticObstacle(f"{category.lower()}_{len(obstacles):03d}", category.lower(),
-                                   local[middle], float(city_yaw[middle]), np.median(size[rows], axis=0))
-                )  # fmt: skip
+                    StaticObstacle(
+                        f"{category.lower()}_{len(obstacles):03d}",
+                        category.lower(),
+                        local[middle],
+                        float(city_yaw[middle]),
+                        np.median(size[rows], axis=0),
+                    )
+                )
                 report.static[category] += 1
             else:
                 report.drop(
@@ -424,9 +460,16 @@ def import_sensor_log(folder: Path) -> Imported:
                 )
             continue
         track = resample_track(
-            uuid, agent_class, t[rows], local[rows, :2], local[rows, 2], city_yaw[rows], size[rows], grid,
+            uuid,
+            agent_class,
+            t[rows],
+            local[rows, :2],
+            local[rows, 2],
+            city_yaw[rows],
+            size[rows],
+            grid,
             {"source_class": category},
-        )  # fmt: skip
+        )
         track = None if track is None else _clip_to_map(track, reach)
         if track is None:
             report.drop(
@@ -453,7 +496,7 @@ def import_sensor_log(folder: Path) -> Imported:
             "kind": "sensor log",
             "weather": "not recorded; clear assumed",
             "signals": "not recorded",
-        },  # fmt: skip
+        },
     )
     return Imported(intersection_map, scenario, report)
 
@@ -471,8 +514,16 @@ def _with_obstacles(
 # ------------------------------------------------------------------------------ forecasting
 
 
-FORECAST_COLUMNS = ["track_id", "object_type", "timestep", "position_x", "position_y", "heading",
-                    "start_timestamp", "city"]  # fmt: skip
+FORECAST_COLUMNS = [
+    "track_id",
+    "object_type",
+    "timestep",
+    "position_x",
+    "position_y",
+    "heading",
+    "start_timestamp",
+    "city",
+]
 
 
 def import_forecasting(folder: Path) -> Imported:
@@ -530,18 +581,30 @@ def import_forecasting(folder: Path) -> Imported:
             if kind in ("static", "riderless_bicycle", "construction") and travel < STATIC_TRAVEL_M:
                 middle = rows[len(rows) // 2]
                 obstacles.append(
-                    StaticObstacle(f"{kind}_{len(obstacles):03d}", kind, np.append(local[middle], 0.5),
-                                   float(heading[middle]), np.array([1.0, 1.0, 1.0]))
-                )  # fmt: skip
+                    StaticObstacle(
+                        f"{kind}_{len(obstacles):03d}",
+                        kind,
+                        np.append(local[middle], 0.5),
+                        float(heading[middle]),
+                        np.array([1.0, 1.0, 1.0]),
+                    )
+                )
                 report.static[kind] += 1
             else:
                 report.drop(kind, "not one of the 8 classes")
             continue
         size = np.tile(TYPICAL_SIZE_M[agent_class], (len(rows), 1))
         track = resample_track(
-            str(track_id), agent_class, grid[step[rows]], local[rows], 0.5 * size[:, 2], heading[rows], size,
-            grid, {"source_class": kind, "size_source": "class default (forecasting data has no sizes)"},
-        )  # fmt: skip
+            str(track_id),
+            agent_class,
+            grid[step[rows]],
+            local[rows],
+            0.5 * size[:, 2],
+            heading[rows],
+            size,
+            grid,
+            {"source_class": kind, "size_source": "class default (forecasting data has no sizes)"},
+        )
         track = None if track is None else _clip_to_map(track, reach)
         if track is None:
             report.drop(kind, "outside the mapped area (more than 2 m from road and crosswalks)")
@@ -571,6 +634,6 @@ def import_forecasting(folder: Path) -> Imported:
             "weather": "not recorded; clear assumed",
             "signals": "not recorded",
             "sizes": "class defaults",
-        },  # fmt: skip
+        },
     )
     return Imported(_with_obstacles(intersection_map, obstacles), scenario, report)

@@ -224,9 +224,16 @@ def import_commonroad(path: Path) -> Imported:
         yaw = np.array([s.orientation for s in states], dtype=float)
         size = np.tile([length, width, height], (len(states), 1))
         track = resample_track(
-            str(obstacle.obstacle_id), agent_class, grid[steps], xy, np.full(len(states), height / 2), yaw,
-            size, grid, {"source_class": kind, "height_source": "class default"},
-        )  # fmt: skip
+            str(obstacle.obstacle_id),
+            agent_class,
+            grid[steps],
+            xy,
+            np.full(len(states), height / 2),
+            yaw,
+            size,
+            grid,
+            {"source_class": kind, "height_source": "class default"},
+        )
         if track is not None:
             tracks.append(track)
             report.keep(kind, agent_class)
@@ -241,7 +248,7 @@ def import_commonroad(path: Path) -> Imported:
                     for k in range(len(grid))
                 ],
                 np.uint8,
-            ),  # fmt: skip
+            ),
             origin="cycle_derived",
         )
         for light in cr_scenario.lanelet_network.traffic_lights
@@ -258,6 +265,6 @@ def import_commonroad(path: Path) -> Imported:
             "source_file": path.name,
             "time": "not recorded; nominal noon",
             "signals": "derived from the traffic-light cycles in the file",
-        },  # fmt: skip
+        },
     )
     return Imported(intersection_map, scenario, report)

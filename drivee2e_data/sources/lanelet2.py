@@ -209,8 +209,11 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
     osm = read_osm(path, origin)
     lanes, crosswalks, sidewalks = [], [], []
     light_of_lane: dict[str, str] = {}
-    lights = {rid: (members, tags) for rid, (members, tags) in osm.relations.items()
-              if tags.get("type") == "regulatory_element" and tags.get("subtype") == "traffic_light"}  # fmt: skip
+    lights = {
+        rid: (members, tags)
+        for rid, (members, tags) in osm.relations.items()
+        if tags.get("type") == "regulatory_element" and tags.get("subtype") == "traffic_light"
+    }
     for relation_id, (members, tags) in osm.relations.items():
         if tags.get("type") != "lanelet":
             continue
@@ -251,9 +254,10 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
         line = _line(osm, way_id)
         geometry = shapely.LineString(line[:, :2])
         near = tuple(
-            lane.lane_id for lane in lanes
+            lane.lane_id
+            for lane in lanes
             if geometry.distance(shapely.Point(lane.centerline_m[-1, :2])) < STOP_LINE_REACH_M
-        )  # fmt: skip
+        )
         stop_lines.append(StopLine(f"stop_{way_id}", line, near))
     heads = []
     for relation_id, (members, _) in lights.items():
@@ -275,8 +279,15 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
                 lane = next(la for la in lanes if la.lane_id == controlled[0])
                 back = lane.centerline_m[-2, :2] - lane.centerline_m[-1, :2]
                 facing = float(np.arctan2(back[1], back[0]))
-            heads.append(SignalHead(f"head_{relation_id}_{index}", signal_id, position, facing,
-                                    controlled_lane_ids=controlled))  # fmt: skip
+            heads.append(
+                SignalHead(
+                    f"head_{relation_id}_{index}",
+                    signal_id,
+                    position,
+                    facing,
+                    controlled_lane_ids=controlled,
+                )
+            )
     shown = {head.signal_id for head in heads}
     lanes = [
         lane if lane.signal_id in shown or lane.signal_id is None else _without_signal(lane)

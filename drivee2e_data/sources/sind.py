@@ -53,9 +53,15 @@ VEHICLE_CLASSES = {
     "tricycle": AgentClass.TRICYCLIST,
     "pedestrian": AgentClass.PEDESTRIAN,
 }
-WEATHERS = {"sunny": Weather.CLEAR, "clear": Weather.CLEAR, "cloudy": Weather.CLOUDY,
-            "overcast": Weather.OVERCAST, "rainy": Weather.RAIN, "rain": Weather.RAIN,
-            "foggy": Weather.FOG}  # fmt: skip
+WEATHERS = {
+    "sunny": Weather.CLEAR,
+    "clear": Weather.CLEAR,
+    "cloudy": Weather.CLOUDY,
+    "overcast": Weather.OVERCAST,
+    "rainy": Weather.RAIN,
+    "rain": Weather.RAIN,
+    "foggy": Weather.FOG,
+}
 NOMINAL_DATE = datetime(2021, 6, 1, tzinfo=timezone.utc)  # SinD gives weekday and hour, no date
 CHINA_UTC_OFFSET_H = 8
 
@@ -154,9 +160,15 @@ def _tracks(
         if "yaw_rad" in columns:
             yaw = np.array([number(path, i, "yaw_rad", r["yaw_rad"]) for i, r in entries])[order]
             size = np.array(
-                [[number(path, i, "length", r["length"]), number(path, i, "width", r["width"]),
-                  TYPICAL_SIZE_M[agent_class][2]] for i, r in entries]
-            )[order]  # fmt: skip
+                [
+                    [
+                        number(path, i, "length", r["length"]),
+                        number(path, i, "width", r["width"]),
+                        TYPICAL_SIZE_M[agent_class][2],
+                    ]
+                    for i, r in entries
+                ]
+            )[order]
         else:
             velocity = np.array(
                 [
@@ -278,6 +290,6 @@ def import_sind(city_folder: Path, clip_s: float = 20.0) -> SindImport:
             "conditions": note,
             "signals_file": lights[0].name,
             "signals_time_origin_ms": start_ms,
-        },  # fmt: skip
+        },
     )
     return SindImport(intersection_map, cut_clips(whole, clip_s), whole, report)
