@@ -51,6 +51,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="number of distinct intersections (default: min(clips, 4))",
     )
 
+    importer = commands.add_parser("import", help="import real traffic and maps")
+    importer.add_argument("kind", choices=datasets.IMPORT_KINDS, help="source format")
+    importer.add_argument("source", type=Path, help="file or folder to import")
+    importer.add_argument("--out", type=Path, required=True, help="data root to write into")
+    importer.add_argument(
+        "--clip-seconds",
+        type=float,
+        default=20.0,
+        help="cut longer recordings into clips this long",
+    )
+
     scenarios = commands.add_parser(
         "scenarios", help="list and validate the scenarios of a data root"
     )
@@ -71,6 +82,23 @@ def _synth(args: argparse.Namespace) -> int:
         f"{len(report.written)} clips written, {len(report.skipped)} already present, "
         f"{len(report.maps)} maps, under {args.out}"
     )
+    return 0
+
+
+def _import(args: argparse.Namespace) -> int:
+    with tqdm(unit="clip", desc=f"importing {args.kind}", disable=None) as bar:
+        summary = datasets.import_source(
+            args.out, args.kind, args.source, args.clip_seconds, on_scenario=lambda _: bar.update(1)
+        )
+    print(
+        f"{len(summary.scenarios)} scenarios and {len(summary.maps)} maps written under {args.out}"
+    )
+    lines = summary.report.lines()
+    if lines:
+        print("per source class:")
+        print("\n".join(lines))
+    for warning in summary.report.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -106,7 +134,7 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"synth": _synth, "scenarios": _scenarios}
+    handlers = {"synth": _synth, "import": _import, "scenarios": _scenarios}
     try:
         return handlers[args.command](args)
     except DriveE2EError as error:

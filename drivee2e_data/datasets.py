@@ -12,8 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivee2e_data import store
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, Scenario
 from drivee2e_data.sources import synthetic
+from drivee2e_data.sources.common import ImportReport, cut_clips
 
 
 @dataclass(frozen=True)
@@ -114,3 +117,118 @@ def summarize(
         if on_scenario is not None:
             on_scenario(scenario_id)
     return summaries
+
+
+IMPORT_KINDS = ("drivee2e", "v2x-seq", "av2", "commonroad", "sind", "interaction", "lanelet2")
+
+
+@dataclass(frozen=True)
+class ImportSummary:
+    maps: list[str]
+    scenarios: list[str]
+    report: ImportReport
+
+
+def _one(paths: list[Path], what: str, where: Path) -> Path:
+    if len(paths) != 1:
+        raise DriveE2EError(f"{where}: expected exactly one {what}, found {len(paths)}")
+    return paths[0]
+
+
+def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario], ImportReport]:
+    """Parse everything in memory first, so bad input writes nothing."""
+    from drivee2e_data.sources import (
+        argoverse2,
+        commonroad,
+        drivee2e_clip,
+        interaction,
+        lanelet2,
+        sind,
+        v2x_seq,
+    )
+
+    if not source.exists():
+        raise DriveE2EError(f"{source}: no such file or folder")
+    if kind == "lanelet2":
+        return [lanelet2.read_map(source, f"lanelet2_{source.stem}")], [], ImportReport()
+    if kind == "av2":
+        if (source / "annotations.feather").exists():
+            result = argoverse2.import_sensor_log(source)
+        else:
+            result = argoverse2.import_forecasting(source)
+        return [result.intersection_map], [result.scenario], result.report
+    if kind == "commonroad":
+        files = [source] if source.is_file() else sorted(source.glob("*.xml"))
+        results = [commonroad.import_commonroad(f) for f in files]
+        report = ImportReport()
+        for r in results:
+            _merge(report, r.report)
+        return [r.intersection_map for r in results], [r.scenario for r in results], report
+    if kind == "sind":
+        result = sind.import_sind(source)
+        return [result.intersection_map], [result.recording], result.report
+    if kind == "interaction":
+        osm = _one(sorted(source.glob("*.osm")), "Lanelet2 map (*.osm)", source)
+        result = interaction.import_interaction(sorted(source.glob("*.csv")), osm)
+        return [result.intersection_map], [result.scenario], result.report
+    hdmap = _one(sorted(source.rglob("hdmap*.json")), "hdmap*.json map", source)
+    report, maps, scenarios = ImportReport(), {}, []
+    if kind == "v2x-seq":
+        folder = source / "trajectories" if (source / "trajectories").is_dir() else source
+        for csv_path in sorted(folder.glob("*.csv")):
+            lights = source / "traffic_light" / csv_path.name
+            result = v2x_seq.import_v2x_seq(csv_path, lights if lights.is_file() else None, hdmap)
+            maps[result.intersection_map.map_id] = result.intersection_map
+            scenarios.append(result.scenario)
+            _merge(report, result.report)
+    elif kind == "drivee2e":
+        for route in sorted(source.rglob("*.xml")):
+            csv_id = str(drivee2e_clip.read_route(route)["scenario_csv_id"])
+            clip = _one(sorted(source.rglob(f"{csv_id}.csv")), f"clip CSV {csv_id}.csv", source)
+            result = drivee2e_clip.import_clip(clip, route, hdmap)
+            maps[result.intersection_map.map_id] = result.intersection_map
+            scenarios.append(result.scenario)
+            _merge(report, result.report)
+    else:
+        raise DriveE2EError(
+            f"unknown import kind {kind!r}; expected one of {', '.join(IMPORT_KINDS)}"
+        )
+    if not scenarios:
+        raise DriveE2EError(f"{source}: nothing to import for {kind}")
+    return list(maps.values()), scenarios, report
+
+
+def _merge(into: ImportReport, other: ImportReport) -> None:
+    into.kept.update(other.kept)
+    into.static.update(other.static)
+    for table_into, table_other in ((into.mapped, other.mapped), (into.dropped, other.dropped)):
+        for name, (label, count) in table_other.items():
+            table_into[name] = (label, table_into.get(name, (label, 0))[1] + count)
+    into.warnings.extend(other.warnings)
+
+
+def import_source(
+    root: Path,
+    kind: str,
+    source: Path,
+    clip_s: float = 20.0,
+    on_scenario: Callable[[str], None] | None = None,
+) -> ImportSummary:
+    """Import real data of `kind` from `source` into `root`; recordings longer than 1.5 clips
+    are cut into clips of `clip_s` seconds whose ego is a vehicle valid throughout."""
+    maps, scenarios, report = _load(kind, Path(source))
+    written = []
+    for intersection_map in maps:
+        store.write_map(root, intersection_map)
+    for scenario in scenarios:
+        if scenario.duration_s > 1.5 * clip_s:
+            candidates = [t.track_id for t in scenario.tracks if t.agent_class.is_motor_vehicle]
+            pieces = cut_clips(scenario, clip_s, candidates)
+        else:
+            pieces = [scenario]
+        for piece in pieces:
+            store.write_scenario(root, piece)
+            written.append(piece.scenario_id)
+            if on_scenario is not None:
+                on_scenario(piece.scenario_id)
+    return ImportSummary([m.map_id for m in maps], written, report)

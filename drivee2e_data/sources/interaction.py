@@ -1,0 +1,115 @@
+"""INTERACTION dataset (drone view of intersections): track CSVs and Lanelet2 maps.
+
+Vehicle files give heading and box size; pedestrian/bicycle files give neither, so heading
+follows velocity and sizes are class defaults (flagged). A 'pedestrian/bicycle' agent faster
+than 3 m/s at any time is taken for a cyclist. Maps use the origin (0, 0) (see `lanelet2`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from drivee2e_data.errors import ScenarioFormatError
+from drivee2e_data.scenario import AgentClass, Conditions, Scenario, TimeOfDay, Weather
+from drivee2e_data.sources import lanelet2
+from drivee2e_data.sources.argoverse2 import Imported
+from drivee2e_data.sources.common import (
+    TYPICAL_SIZE_M,
+    ImportReport,
+    grid_between,
+    number,
+    read_csv_rows,
+    resample_track,
+)
+from drivee2e_data.sources.sind import NOMINAL_DATE
+
+SOURCE = "interaction"
+CLASSES = {"car": AgentClass.CAR, "truck": AgentClass.TRUCK, "bus": AgentClass.BUS}
+WALKING_LIMIT_MPS = 3.0
+COLUMNS = ["track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy"]
+
+
+def import_interaction(track_csvs: list[Path], osm_map: Path) -> Imported:
+    """Track CSVs of one recording (vehicles and pedestrians) with their Lanelet2 map."""
+    report = ImportReport()
+    map_id = f"interaction_{Path(osm_map).stem}"
+    intersection_map = lanelet2.read_map(Path(osm_map), map_id, origin=(0.0, 0.0))
+    entries: dict[str, list[tuple[int, dict[str, str], Path]]] = {}
+    for path in map(Path, track_csvs):
+        _, rows = read_csv_rows(path, COLUMNS)
+        for index, row in enumerate(rows, start=2):
+            entries.setdefault(f"{row['agent_type'][:1]}{row['track_id']}", []).append(
+                (index, row, path)
+            )
+    all_ms = [
+        number(p, i, "timestamp_ms", r["timestamp_ms"])
+        for rows in entries.values()
+        for i, r, p in rows
+    ]
+    t0_ns = int(NOMINAL_DATE.timestamp()) * 1_000_000_000
+    first_ms = min(all_ms)
+    grid = grid_between(t0_ns, t0_ns + round((max(all_ms) - first_ms) * 1e6))
+    tracks = []
+    for track_id, rows in entries.items():
+        kind = rows[0][1]["agent_type"].strip().lower()
+        t_ms = np.array([number(p, i, "timestamp_ms", r["timestamp_ms"]) for i, r, p in rows])
+        if np.any(np.diff(t_ms) <= 0):
+            index, _, path = rows[int(np.flatnonzero(np.diff(t_ms) <= 0)[0]) + 1]
+            raise ScenarioFormatError(
+                f"{path} row {index}: column 'timestamp_ms' is out of order for track {track_id!r}"
+            )
+        xy = np.array([[number(p, i, "x", r["x"]), number(p, i, "y", r["y"])] for i, r, p in rows])
+        velocity = np.array(
+            [[number(p, i, "vx", r["vx"]), number(p, i, "vy", r["vy"])] for i, r, p in rows]
+        )
+        if kind in CLASSES:
+            agent_class = CLASSES[kind]
+            yaw = np.array([number(p, i, "psi_rad", r.get("psi_rad")) for i, r, p in rows])
+            size = np.array(
+                [
+                    [
+                        number(p, i, "length", r.get("length")),
+                        number(p, i, "width", r.get("width")),
+                        TYPICAL_SIZE_M[agent_class][2],
+                    ]
+                    for i, r, p in rows
+                ]
+            )
+            note = "length and width from the file"
+        elif kind in ("pedestrian/bicycle", "pedestrian", "bicycle"):
+            fast = np.hypot(velocity[:, 0], velocity[:, 1]).max() > WALKING_LIMIT_MPS
+            agent_class = AgentClass.CYCLIST if fast or kind == "bicycle" else AgentClass.PEDESTRIAN
+            yaw = np.arctan2(velocity[:, 1], velocity[:, 0])
+            size = np.tile(TYPICAL_SIZE_M[agent_class], (len(rows), 1))
+            note = "class default (the file has no size)"
+        else:
+            report.drop(kind, "not one of the 8 classes")
+            continue
+        t_ns = t0_ns + np.round((t_ms - first_ms) * 1e6).astype(np.int64)
+        track = resample_track(
+            track_id,
+            agent_class,
+            t_ns,
+            xy,
+            0.5 * size[:, 2],
+            yaw,
+            size,
+            grid,
+            {"source_class": kind, "size_source": note},
+        )
+        if track is not None:
+            tracks.append(track)
+            report.keep(kind, agent_class)
+    scenario = Scenario(
+        scenario_id=f"interaction_{Path(track_csvs[0]).stem}",
+        map_id=map_id,
+        source=SOURCE,
+        t_ns=grid,
+        tracks=tuple(tracks),
+        signals=(),
+        conditions=Conditions(Weather.CLEAR, TimeOfDay.NOON, NOMINAL_DATE),
+        metadata={"files": [Path(p).name for p in track_csvs], "time and weather": "not recorded"},
+    )
+    return Imported(intersection_map, scenario, report)
