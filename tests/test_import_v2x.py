@@ -1,0 +1,327 @@
+"""V2X-Seq, DriveE2E-clip and INTERACTION importers on files the tests write in each layout,
+and bad input: one clear error naming file, row and column, exit 2, nothing written."""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivee2e_data import datasets
+from drivee2e_data.cli import main
+from drivee2e_data.errors import ScenarioFormatError
+from drivee2e_data.scenario import AgentClass, SignalState, SubScenario, TimeOfDay, Weather
+from drivee2e_data.sources import drivee2e_clip, v2x_seq
+
+SUB_TYPES = ["Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist", "Tricyclist", "Motorcyclist"]
+BASE = (417_700.0, 4_731_500.0)  # a shifted UTM 50 frame, as in the published files
+T0 = 1_626_150_000.0
+
+
+def _pt(x, y):
+    return f"({BASE[0] + x:.2f}, {BASE[1] + y:.2f})"
+
+
+def write_hdmap(path: Path, bad_successor: bool = False) -> None:
+    """Two lanes and a junction lane, every value string-encoded like the DriveE2E release."""
+    lanes = {
+        "1": {
+            "centerline": str([_pt(-60, -1.75), _pt(-10, -1.75)]),
+            "is_intersection": "False",
+            "turn_direction": "NONE",
+            "has_traffic_control": "True",
+            "lane_type": "CITY_DRIVING",
+            "predecessors": "[]",
+            "successors": "['3']",
+            "l_neighbor_id": "None",
+            "r_neighbor_id": "None",
+        },
+        "3": {
+            "centerline": str([_pt(-10, -1.75), _pt(10, -1.75)]),
+            "is_intersection": "True",
+            "turn_direction": "STRAIGHT",
+            "predecessors": "['1']",
+            "successors": "['99']" if bad_successor else "['2']",
+        },
+        "2": {
+            "centerline": str([_pt(10, -1.75), _pt(60, -1.75)]),
+            "is_intersection": "False",
+            "turn_direction": "NONE",
+            "predecessors": "['3']",
+            "successors": "[]",
+            "left_boundary": str([_pt(10, 0), _pt(60, 0)]),
+            "right_boundary": str([_pt(10, -3.5), _pt(60, -3.5)]),
+        },
+    }
+    document = {
+        "LANE": lanes,
+        "STOPLINE": {"7": {"centerline": str([_pt(-10, 0), _pt(-10, -3.5)])}},
+        "CROSSWALK": {"8": {"polygon": str([_pt(-9, 0), _pt(-5, 0), _pt(-5, -7), _pt(-9, -7)])}},
+    }
+    path.write_text(json.dumps(document))
+
+
+def trajectory_rows(extra: bool = False) -> list[dict[str, str]]:
+    rows = []
+    for k, sub_type in enumerate(SUB_TYPES):
+        for step in range(30):
+            row = {
+                "city": "Beijing",
+                "timestamp": f"{T0 + 0.1 * step:.1f}",
+                "id": str(100 + k),
+                "type": "VEHICLE",
+                "sub_type": sub_type,
+                "tag": "",
+                "x": f"{BASE[0] - 50 + step + 3 * k:.3f}",
+                "y": f"{BASE[1] - 1.75:.3f}",
+                "z": "0.8",
+                "length": "4.5",
+                "width": "1.8",
+                "height": "1.6",
+                "theta": "0.0",
+                "v_x": "10.0",
+                "v_y": "0.0",
+                "intersect_id": "yizhuang#4-1_po",
+            }
+            if extra:
+                row.update(
+                    weather="Cloudy",
+                    ori_clip_index="17",
+                    blueprint=f"vehicle.bp.{sub_type.lower()}",
+                )
+            rows.append(row)
+    return rows
+
+
+def write_csv(path: Path, rows: list[dict[str, str]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as stream:
+        writer = csv.DictWriter(stream, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def light_rows() -> list[dict[str, str]]:
+    rows = []
+    for k, colour in enumerate(["GREEN", "YELLOW", "RED"]):
+        rows.append(
+            {
+                "city": "Beijing",
+                "timestamp": f"{T0 + k:.1f}",
+                "x": f"{BASE[0] + 12:.2f}",
+                "y": f"{BASE[1] + 4:.2f}",
+                "direction": "west",
+                "lane_id": "1",
+                "color_1": colour,
+                "remain_1": "3",
+                "color_2": "RED",
+                "remain_2": "9",
+                "color_3": "",
+                "remain_3": "",
+                "intersect_id": "yizhuang#4-1_po",
+            }
+        )
+    return rows
+
+
+@pytest.fixture
+def v2x_folder(tmp_path: Path) -> Path:
+    folder = tmp_path / "v2x"
+    write_csv(folder / "trajectories" / "scene_001.csv", trajectory_rows())
+    write_csv(folder / "traffic_light" / "scene_001.csv", light_rows())
+    (folder / "maps").mkdir()
+    write_hdmap(folder / "maps" / "hdmap4.json")
+    return folder
+
+
+def test_v2x_seq_scene(v2x_folder: Path):
+    result = v2x_seq.import_v2x_seq(
+        v2x_folder / "trajectories" / "scene_001.csv",
+        v2x_folder / "traffic_light" / "scene_001.csv",
+        v2x_folder / "maps" / "hdmap4.json",
+    )
+    scenario, m = result.scenario, result.intersection_map
+    assert {t.agent_class for t in scenario.tracks} == set(AgentClass)
+    assert scenario.num_frames == 30 and m.map_id == "v2x_yizhuang_4_1_po"
+    assert np.allclose(scenario.track("100").vx_mps[scenario.track("100").valid], 10.0)
+    light = scenario.signal("light_1_1")
+    assert [light.state_at(f) for f in (0, 12, 25)] == [
+        SignalState.GREEN,
+        SignalState.YELLOW,
+        SignalState.RED,
+    ]
+    assert scenario.signal("light_1_2").state_at(5) == SignalState.RED
+    assert m.lane("1").signal_id == "light_1_1" and m.lane("3").is_intersection
+    assert m.lane("3").turn_direction.value == "straight" and m.lane("1").successors == ("3",)
+    assert len(m.crosswalks) == 1 and m.stop_lines[0].lane_ids == ("1",)
+    assert np.allclose(
+        m.lane("2").left_boundary_m[0, :2] - m.lane("2").right_boundary_m[0, :2], [0, 3.5]
+    )
+
+
+def test_drivee2e_clip_with_route(tmp_path: Path):
+    write_csv(tmp_path / "YLW_001.csv", trajectory_rows(extra=True))
+    write_hdmap(tmp_path / "hdmap4.json")
+    (tmp_path / "route.xml").write_text(
+        '<routes><route id="0" road_id="4" town="yizhuang" scenario_csv_id="YLW_001" ego_id="100">'
+        '<weathers><weather route_percentage="0" cloudiness="80" precipitation="60" '
+        'precipitation_deposits="40" wind_intensity="10" sun_azimuth_angle="200" '
+        'sun_altitude_angle="-10"/></weathers></route></routes>'
+    )
+    result = drivee2e_clip.import_clip(
+        tmp_path / "YLW_001.csv", tmp_path / "route.xml", tmp_path / "hdmap4.json"
+    )
+    scenario = result.scenario
+    assert scenario.ego_id == "100"
+    assert scenario.conditions.weather == Weather.RAIN  # precipitation 60 overrides 'Cloudy'
+    assert scenario.conditions.time_of_day == TimeOfDay.NIGHT  # the sun is below the horizon
+    assert scenario.track("103").metadata["blueprint"] == "vehicle.bp.bus"
+    assert scenario.metadata["imported_category"] == "YLW" and scenario.behavior is None
+    straight = drivee2e_clip.conditions_of("Cloudy", {"sun_altitude_angle": 60.0}, 0)
+    assert straight.weather == Weather.CLOUDY and straight.time_of_day == TimeOfDay.NOON
+    (tmp_path / "route.xml").write_text(
+        '<routes><route scenario_csv_id="STR_000" ego_id="101"/></routes>'
+    )
+    (tmp_path / "YLW_001.csv").rename(tmp_path / "STR_000.csv")
+    labelled = drivee2e_clip.import_clip(
+        tmp_path / "STR_000.csv", tmp_path / "route.xml", tmp_path / "hdmap4.json"
+    )
+    assert labelled.scenario.behavior.sub_scenario == SubScenario.STR
+
+
+def test_unknown_class_is_dropped_with_a_warning_and_counted(v2x_folder: Path):
+    rows = trajectory_rows()
+    for row in rows[:30]:
+        row["sub_type"] = "Hovercraft"
+    write_csv(v2x_folder / "trajectories" / "scene_001.csv", rows)
+    summary = datasets.import_source(v2x_folder.parent / "out", "v2x-seq", v2x_folder)
+    assert summary.report.dropped["Hovercraft"][1] == 30
+    assert any("row 2: sub_type 'Hovercraft' is unknown" in w for w in summary.report.warnings)
+
+
+def _damage_row(column, value, row=3):
+    def damage(folder: Path) -> None:
+        rows = trajectory_rows()
+        rows[row - 2][column] = value
+        write_csv(folder / "trajectories" / "scene_001.csv", rows)
+
+    return damage
+
+
+def _drop_column(folder: Path) -> None:
+    rows = [{k: v for k, v in r.items() if k != "theta"} for r in trajectory_rows()]
+    write_csv(folder / "trajectories" / "scene_001.csv", rows)
+
+
+def _empty(folder: Path) -> None:
+    (folder / "trajectories" / "scene_001.csv").write_text("")
+
+
+def _out_of_order(folder: Path) -> None:
+    rows = trajectory_rows()
+    rows[4]["timestamp"], rows[5]["timestamp"] = rows[5]["timestamp"], rows[4]["timestamp"]
+    write_csv(folder / "trajectories" / "scene_001.csv", rows)
+
+
+def _dangling_map(folder: Path) -> None:
+    write_hdmap(folder / "maps" / "hdmap4.json", bad_successor=True)
+
+
+BAD = {
+    "missing column": (_drop_column, r"scene_001.csv: column 'theta' is missing"),
+    "nan coordinate": (
+        _damage_row("x", "nan"),
+        r"scene_001.csv row 3: column 'x' is 'nan', expected a finite number",
+    ),
+    "non-numeric field": (
+        _damage_row("length", "long"),
+        r"scene_001.csv row 3: column 'length' is 'long', expected a number",
+    ),
+    "timestamps out of order": (
+        _out_of_order,
+        r"scene_001.csv row 7: column 'timestamp' is out of order for track '100'",
+    ),
+    "empty file": (_empty, r"scene_001.csv: file is empty"),
+    "missing lane": (
+        _dangling_map,
+        r"hdmap4.json: lane '3'.successors references lane '99', which the map lacks",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_input_is_one_clear_error_and_writes_nothing(
+    case, v2x_folder: Path, tmp_path: Path, capsys
+):
+    damage, message = BAD[case]
+    damage(v2x_folder)
+    out = tmp_path / "out"
+    with pytest.raises(ScenarioFormatError, match=message):
+        datasets.import_source(out, "v2x-seq", v2x_folder)
+    assert main(["import", "v2x-seq", str(v2x_folder), "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and error[0].startswith("drivee2e: error: ")
+    assert not out.exists()
+
+
+def test_interaction_tracks_and_map(tmp_path: Path):
+    from drivee2e_data.sources import interaction
+
+    osm = tmp_path / "DR_TEST.osm"
+    nodes = "".join(
+        f"<node id='{i}' lat='{lat}' lon='{lon}'/>"
+        for i, (lat, lon) in enumerate(
+            [(0.0, 0.0), (0.0, 0.0005), (0.00003, 0.0), (0.00003, 0.0005)], 1
+        )
+    )
+    osm.write_text(
+        f"<osm>{nodes}<way id='10'><nd ref='3'/><nd ref='4'/><tag k='type' v='line_thin'/>"
+        "<tag k='subtype' v='dashed'/></way><way id='11'><nd ref='1'/><nd ref='2'/>"
+        "<tag k='type' v='curbstone'/></way><relation id='20'><member type='way' ref='10' role='left'/>"
+        "<member type='way' ref='11' role='right'/><tag k='type' v='lanelet'/>"
+        "<tag k='subtype' v='road'/></relation></osm>"
+    )
+    vehicles = [
+        {
+            "track_id": "1",
+            "frame_id": str(k),
+            "timestamp_ms": str(100 * k),
+            "agent_type": "car",
+            "x": str(5 + k),
+            "y": "1.7",
+            "vx": "10",
+            "vy": "0",
+            "psi_rad": "0",
+            "length": "4.2",
+            "width": "1.8",
+        }
+        for k in range(1, 21)
+    ]
+    walkers = [
+        {
+            "track_id": "P1",
+            "frame_id": str(k),
+            "timestamp_ms": str(100 * k),
+            "agent_type": "pedestrian/bicycle",
+            "x": "20",
+            "y": str(0.12 * k),
+            "vx": "0",
+            "vy": "1.2",
+        }
+        for k in range(1, 21)
+    ]
+    write_csv(tmp_path / "vehicle_tracks_000.csv", vehicles)
+    write_csv(tmp_path / "pedestrian_tracks_000.csv", walkers)
+    result = interaction.import_interaction(
+        [tmp_path / "vehicle_tracks_000.csv", tmp_path / "pedestrian_tracks_000.csv"], osm
+    )
+    classes = sorted(t.agent_class.value for t in result.scenario.tracks)
+    assert classes == ["car", "pedestrian"]
+    lane = result.intersection_map.lanes[0]
+    # 0.0005 deg of longitude on the equator is 55.66 m; UTM zone 31's scale 3 deg off its meridian
+    # makes it 55.71 m. 0.00003 deg of latitude is 3.32 m.
+    assert lane.length_m == pytest.approx(55.71, abs=0.05)
+    width = lane.left_boundary_m[0, 1] - lane.right_boundary_m[0, 1]
+    assert width == pytest.approx(3.32, abs=0.02)
+    assert lane.left_mark.pattern.value == "dashed" and len(result.intersection_map.kerbs) == 1
