@@ -9,7 +9,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from drivee2e_data import __version__, datasets
+from drivee2e_data import __version__, datasets, figures
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import AgentClass
 
@@ -62,10 +62,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="cut longer recordings into clips this long",
     )
 
+    curate = commands.add_parser("curate", help="score tracks, choose egos, label behaviours")
+    curate.add_argument("data", type=Path, help="data root")
+
     scenarios = commands.add_parser(
         "scenarios", help="list and validate the scenarios of a data root"
     )
     scenarios.add_argument("data", type=Path, help="data root")
+    scenarios.add_argument("--stats", action="store_true", help="print the dataset's distributions")
+    scenarios.add_argument(
+        "--plot", type=Path, default=None, help="draw the distributions to this PNG"
+    )
     return parser
 
 
@@ -102,6 +109,36 @@ def _import(args: argparse.Namespace) -> int:
     return 0
 
 
+def _curate(args: argparse.Namespace) -> int:
+    if not (args.data / "scenarios").is_dir():
+        raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
+    with tqdm(unit="clip", desc="curating", disable=None) as bar:
+        rows = datasets.curate(args.data, on_scenario=lambda _: bar.update(1))
+    header = ("scenario", "ego", "ego from", "behaviour", "dropped", "repaired")
+    table = [
+        (
+            r.scenario_id,
+            r.ego_id or "-",
+            r.ego_source,
+            r.behavior,
+            str(r.tracks_dropped),
+            str(r.tracks_repaired),
+        )
+        for r in rows
+    ]
+    _print_table(header, table)
+    labelled = sum(r.behavior != "-" for r in rows)
+    print(f"{len(rows)} clips curated, {labelled} labelled")
+    return 0
+
+
+def _print_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
+    widths = [max(len(str(r[k])) for r in [header, *rows]) for k in range(len(header))]
+    for row in [header, *rows]:
+        cells = (str(cell).ljust(width) for cell, width in zip(row, widths, strict=True))
+        print("  ".join(cells).rstrip())
+
+
 def _scenarios(args: argparse.Namespace) -> int:
     if not (args.data / "scenarios").is_dir():
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
@@ -121,20 +158,22 @@ def _scenarios(args: argparse.Namespace) -> int:
         )
         for s in summaries
     ]
-    widths = [max(len(str(r[k])) for r in [header, *rows]) for k in range(len(header))]
-    for row in [header, *rows]:
-        print(
-            "  ".join(
-                str(cell).ljust(width) for cell, width in zip(row, widths, strict=True)
-            ).rstrip()
-        )
+    _print_table(header, rows)
     print(f"{len(rows)} scenarios")
+    if args.stats or args.plot:
+        stats = datasets.statistics(summaries)
+        if args.stats:
+            for name, counts in stats.items():
+                print(f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+        if args.plot:
+            figures.plot_statistics(stats, args.plot, title=str(args.data))
+            print(f"wrote {args.plot}")
     return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"synth": _synth, "import": _import, "scenarios": _scenarios}
+    handlers = {"synth": _synth, "import": _import, "curate": _curate, "scenarios": _scenarios}
     try:
         return handlers[args.command](args)
     except DriveE2EError as error:

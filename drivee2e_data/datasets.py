@@ -7,14 +7,17 @@ skips them instead of redoing them.
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.scenario import AgentClass, Scenario
+from drivee2e_data.scenario import AgentClass, BehaviorCategory, BehaviorLabel, Scenario
 from drivee2e_data.sources import synthetic
 from drivee2e_data.sources.common import ImportReport, cut_clips
 
@@ -232,3 +235,112 @@ def import_source(
             if on_scenario is not None:
                 on_scenario(piece.scenario_id)
     return ImportSummary([m.map_id for m in maps], written, report)
+
+
+@dataclass(frozen=True)
+class CurationRow:
+    """One line of `drivee2e curate`."""
+
+    scenario_id: str
+    ego_id: str | None
+    ego_source: str  # 'kept from the source', 'chosen', or 'none: ...'
+    behavior: str
+    tracks_dropped: int
+    tracks_repaired: int
+
+
+def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list[CurationRow]:
+    """Score and repair tracks, keep or choose each clip's ego, label its behaviour, and write
+    the results into every bundle under `root`. Deterministic; safe to run again."""
+    from drivee2e_data.curation import behavior, ego, quality
+
+    counts: Counter[BehaviorCategory] = Counter()
+    rows = []
+    maps: dict[str, IntersectionMap] = {}
+    for scenario_id in store.scenario_ids(root):
+        scenario = store.read_scenario(root, scenario_id)
+        if scenario.map_id not in maps:
+            maps[scenario.map_id] = store.read_map(root, scenario.map_id)
+        intersection_map = maps[scenario.map_id]
+        kept, qualities = quality.assess_scenario(scenario, intersection_map)
+        repaired = Scenario(**{**scenario.__dict__, "tracks": tuple(kept), "ego_id": None})
+        kept_ids = {t.track_id for t in kept}
+        ego_id, source, label = (
+            None,
+            "none: no vehicle valid in every frame on the map's lanes",
+            None,
+        )
+        if scenario.ego_id in kept_ids and repaired.track(scenario.ego_id).valid.all():
+            ego_id, source = scenario.ego_id, "kept from the source"
+            label = behavior.label(repaired, intersection_map, ego_id)
+        else:
+            choice = ego.choose_ego(repaired, intersection_map, counts, behavior.label)
+            if choice is not None:
+                (ego_id, label), source = choice, "chosen"
+        metadata = dict(scenario.metadata)
+        if scenario.behavior is not None and scenario.behavior.source != "labelled":
+            metadata[f"{scenario.behavior.source}_behavior"] = scenario.behavior.sub_scenario.value
+        metadata["curation"] = {
+            "ego": source,
+            "actions": {q.track_id: q.actions for q in qualities if q.actions},
+        }
+        route = scenario.route
+        if ego_id is not None and (route is None or ego_id != scenario.ego_id):
+            route = ego.route_of(
+                repaired.track(ego_id),
+                behavior.lanes_driven(repaired.track(ego_id), intersection_map),
+            )
+        if label is not None:
+            counts[label.category] += 1
+        scores = [q.score for q in qualities]
+        curated = Scenario(
+            **{
+                **repaired.__dict__,
+                "ego_id": ego_id,
+                "route": route if ego_id is not None else None,
+                "behavior": None if label is None else BehaviorLabel(label, "labelled"),
+                "quality": {
+                    "mean_track_score": float(np.mean(scores)) if scores else 0.0,
+                    "min_track_score": float(np.min(scores)) if scores else 0.0,
+                    "tracks_dropped": float(sum(q.dropped for q in qualities)),
+                    "tracks_repaired": float(
+                        sum(bool(q.actions) and not q.dropped for q in qualities)
+                    ),
+                },
+                "metadata": metadata,
+            }
+        )
+        store.write_scenario(root, curated)
+        rows.append(
+            CurationRow(
+                scenario_id,
+                ego_id,
+                source,
+                "-" if label is None else label.value,
+                sum(q.dropped for q in qualities),
+                sum(bool(q.actions) and not q.dropped for q in qualities),
+            )
+        )
+        if on_scenario is not None:
+            on_scenario(scenario_id)
+    return rows
+
+
+STATISTIC_PANELS = ("behaviour", "agent class", "weather", "time of day")
+
+
+def statistics(summaries: list[ScenarioSummary]) -> dict[str, Counter[str]]:
+    """Distributions over a dataset: clips per behaviour category, weather and time of day;
+    tracks per agent class. Every known value is listed, zeros included, in a fixed order."""
+    from drivee2e_data.scenario import BehaviorCategory, TimeOfDay, Weather
+
+    behaviour = Counter({c.value: 0 for c in BehaviorCategory})
+    behaviour.update(s.behavior.split("-")[0] for s in summaries if s.behavior != "-")
+    classes = Counter({c.value: 0 for c in AgentClass})
+    for s in summaries:
+        classes.update({c.value: n for c, n in s.agents.items()})
+    weather = Counter({w.value: 0 for w in Weather})
+    weather.update(s.weather for s in summaries)
+    time_of_day = Counter({t.value: 0 for t in TimeOfDay})
+    time_of_day.update(s.time_of_day for s in summaries)
+    return dict(zip(STATISTIC_PANELS, (behaviour, classes, weather, time_of_day), strict=True))

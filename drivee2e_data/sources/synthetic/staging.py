@@ -40,9 +40,11 @@ MIN_CLIP_S = 15.0
 MAX_CLIP_S = 30.0
 MAX_ATTEMPTS = 8
 MAX_REPAIRS = 8
-NEAR_PEDESTRIAN_M = 3.0  # a pedestrian this close to the ego's box counts as an interaction
 QUEUE_REACH_M = 40.0  # an ego stopped this close to a red stop line is stopping at red
-MIN_BINDING_STEPS = 3  # a constraint must bind this many steps (0.3 s) to count as yielding
+MIN_BINDING_STEPS = 3
+IPC_GAP_S = 3.0  # a pedestrian in the ego's conflict zone this close in time is an interaction
+COV_GAP_S = 2.5  # another vehicle in a shared conflict zone this close in time competes
+EXIT_MARGIN_M = 5.0  # the ego is this far into its exit lane by the end of the clip  # a constraint must bind this many steps (0.3 s) to count as yielding
 
 TURN_OF = {
     "STR": TurnDirection.STRAIGHT,
@@ -271,6 +273,17 @@ def _simulate_and_repair(
             return None
         run_end = first + int(np.flatnonzero(np.diff(np.r_[valid_after, -5]) != 1)[0])
         last = min(first + round(clip_length_s / STEP_S), run_end)
+        # The clip must show the ego through the junction: extend it until the ego is
+        # EXIT_MARGIN_M into its exit lane, within the 30 s limit, or give up on this attempt.
+        path = network.paths[vehicles[ego_row].movement_id]
+        cleared = np.flatnonzero(
+            result.s_m[ego_row, first : run_end + 1] >= path.exit_s_m + EXIT_MARGIN_M
+        )
+        if cleared.size == 0:
+            return None
+        last = max(last, first + int(cleared[0]))
+        if (last - first) * STEP_S > MAX_CLIP_S:
+            return None
         if (last - first) * STEP_S < MIN_CLIP_S:
             return None
         clash = first_overlap(result, vehicles, pedestrians, first, last)
@@ -392,15 +405,15 @@ def observe(
         or int(np.sum((constraint == Constraint.VEHICLE) & np.isin(other, list(rider_rows))))
         >= MIN_BINDING_STEPS
     )
-    if yielded_vru or _pedestrian_came_near(result, vehicles, ego_row, first, last):
+    if (
+        yielded_vru
+        or _pedestrian_gap_s(result, network, vehicles, pedestrians, ego_row, window) < IPC_GAP_S
+    ):
         return SubScenario(f"IPC-{turn_name[movement.turn]}")
 
     yielded_vehicle = int(np.sum(constraint == Constraint.VEHICLE)) >= MIN_BINDING_STEPS
-    others_yielded = np.sum(
-        (result.constraint[: len(vehicles), window] == Constraint.VEHICLE)
-        & (result.constraint_other[: len(vehicles), window] == ego_row)
-    )
-    if yielded_vehicle or int(others_yielded) >= MIN_BINDING_STEPS:
+    contested = _vehicle_gap_s(result, network, vehicles, ego_row, window) < COV_GAP_S
+    if yielded_vehicle or contested:
         return SubScenario(f"COV-{turn_name[movement.turn]}")
 
     # Stopped before the line while the light is red: at the line, or queued behind others.
@@ -414,16 +427,72 @@ def observe(
     return SubScenario(turn_name[movement.turn])
 
 
-def _pedestrian_came_near(
-    result: SimResult, vehicles: list[VehicleSpec], ego_row: int, first: int, last: int
-) -> bool:
-    window = slice(first, last + 1)
-    ego_xy = np.stack([result.x_m[ego_row, window], result.y_m[ego_row, window]], -1)
-    moving = result.speed_mps[ego_row, window] > 0.5
-    reach = 0.5 * vehicles[ego_row].length_m + NEAR_PEDESTRIAN_M
-    for row in range(len(vehicles), len(result.agent_ids)):
-        ped_xy = np.stack([result.x_m[row, window], result.y_m[row, window]], -1)
-        distance = np.linalg.norm(ped_xy - ego_xy, axis=-1)
-        if np.any((distance < reach) & moving & result.valid[row, window]):
-            return True
-    return False
+def _occupancy_gap_s(ego_frames: np.ndarray, other_frames: np.ndarray) -> float:
+    """Time (s) between two sets of frames (0 when they share one)."""
+    if ego_frames.size == 0 or other_frames.size == 0:
+        return np.inf
+    return float(np.min(np.abs(ego_frames[:, None] - other_frames[None, :])) * STEP_S)
+
+
+def _body_in(
+    result: SimResult, row: int, half_length: float, zone: tuple[float, float], window: slice
+) -> np.ndarray:
+    s = result.s_m[row, window]
+    inside = (s + half_length >= zone[0]) & (s - half_length <= zone[1]) & result.valid[row, window]
+    return np.flatnonzero(inside)
+
+
+def _pedestrian_gap_s(
+    result: SimResult,
+    network: PathNetwork,
+    vehicles: list[VehicleSpec],
+    pedestrians: list[PedestrianSpec],
+    ego_row: int,
+    window: slice,
+) -> float:
+    """Post-encroachment time between the ego and any moving pedestrian at a crossing of its path."""
+    ego = vehicles[ego_row]
+    path = network.paths[ego.movement_id]
+    best = np.inf
+    for k, pedestrian in enumerate(pedestrians):
+        row = len(vehicles) + k
+        zone = network.crossing_zone(
+            ego.movement_id, pedestrian.crossing.crossing_id, pedestrian.crossing.polygon
+        )
+        if zone is None:
+            continue
+        ego_frames = _body_in(result, ego_row, 0.5 * ego.length_m, zone, window)
+        points = path.points_m[(path.s_m >= zone[0]) & (path.s_m <= zone[1])]
+        xy = np.stack([result.x_m[row, window], result.y_m[row, window]], -1)
+        near = np.min(
+            np.linalg.norm(np.nan_to_num(xy, nan=1e9)[:, None] - points[None], axis=-1), axis=1
+        )
+        walking = (near < 2.5) & (result.speed_mps[row, window] > 0.3) & result.valid[row, window]
+        best = min(best, _occupancy_gap_s(ego_frames, np.flatnonzero(walking)))
+    return best
+
+
+def _vehicle_gap_s(
+    result: SimResult,
+    network: PathNetwork,
+    vehicles: list[VehicleSpec],
+    ego_row: int,
+    window: slice,
+) -> float:
+    """Post-encroachment time between the ego and any vehicle in a shared conflict zone."""
+    ego = vehicles[ego_row]
+    best = np.inf
+    for zone in network.zones[ego.movement_id]:
+        ego_frames = _body_in(
+            result, ego_row, 0.5 * ego.length_m, (zone.start_m, zone.end_m), window
+        )
+        if ego_frames.size == 0:
+            continue
+        for row, other in enumerate(vehicles):
+            if other.movement_id != zone.other or other.agent_class.is_vulnerable:
+                continue
+            other_frames = _body_in(
+                result, row, 0.5 * other.length_m, (zone.other_start_m, zone.other_end_m), window
+            )
+            best = min(best, _occupancy_gap_s(ego_frames, other_frames))
+    return best

@@ -34,6 +34,7 @@ YELLOW_STOP_BRAKE_MPS2 = 3.5  # drivers stop at yellow when this deceleration su
 GAP_MARGIN_S = 1.5  # extra time a yielding vehicle keeps between itself and the other
 SPAWN_CLEARANCE_M = 8.0
 PEDESTRIAN_REACH_M = 2.5
+HELD_MPS = 1.0  # a vehicle this slow and held by something ahead is not about to arrive
 FAR_AWAY_S = 9.0  # a vehicle further than this from a conflict zone cannot contest it yet
 
 # (max acceleration, comfortable deceleration) per class, m/s^2
@@ -156,6 +157,7 @@ class TrafficSimulation:
         ]
         self.vehicle_xy = np.full((len(vehicles), 2), np.nan)
         self.vehicle_yaw = np.full(len(vehicles), np.nan)
+        self.held = [False] * len(vehicles)  # whether an obstacle bound each vehicle last step
         self._ped_state = ["approach"] * len(pedestrians)
 
     # ------------------------------------------------------------------ main loop
@@ -253,6 +255,7 @@ class TrafficSimulation:
                 if candidate < best:
                     best, kind, other = candidate, obstacle_kind, obstacle_other
             accel[i] = best
+            self.held[i] = kind != Constraint.FREE
             result.constraint[i, step] = kind
             result.constraint_other[i, step] = other
         return accel
@@ -415,9 +418,13 @@ class TrafficSimulation:
                 continue
             if distance > FAR_AWAY_S * max(v[j], self.vehicles[j].desired_speed_mps):
                 continue  # too far away to matter yet
+            if self._will_stop_for_signal(j, front_j, states, yellow_go):
+                continue  # held at its stop line: it contests nothing until its light changes
             if self._committed(j, front_j, v[j], zone.other_start_m):
                 contenders.append((j, True, 0.0))
-            elif not self._will_stop_for_signal(j, front_j, states, yellow_go):
+            elif v[j] < HELD_MPS and self.held[j]:
+                continue  # standing in a queue or giving way itself: not coming yet
+            else:
                 contenders.append((j, False, self._eta(j, front_j, v[j], zone.other_start_m)))
         self._zone_cache[key] = contenders
         return contenders
