@@ -85,7 +85,9 @@ def test_implausible_speed_lowers_the_score_and_drops():
     assert track is None and q.plausibility == 0.0
 
 
-def test_labeller_agrees_with_staged_behaviour_on_the_default_set(synthetic_root: Path, synthetic_scenarios):
+def test_labeller_agrees_with_staged_behaviour_on_the_default_set(
+    synthetic_root: Path, synthetic_scenarios
+):
     agree = 0
     for scenario in synthetic_scenarios:
         intersection_map = store.read_map(synthetic_root, scenario.map_id)
@@ -97,7 +99,10 @@ def test_turns_from_heading_change():
     arc = np.linspace(0, np.pi / 2, FRAMES)
     left = car(x_m=20 * np.sin(arc), y_m=20 * (1 - np.cos(arc)), yaw_rad=arc)
     assert behavior.turn_of(left).value == "left"
-    assert behavior.turn_of(car(x_m=20 * np.sin(arc), y_m=-20 * (1 - np.cos(arc)), yaw_rad=-arc)).value == "right"
+    assert (
+        behavior.turn_of(car(x_m=20 * np.sin(arc), y_m=-20 * (1 - np.cos(arc)), yaw_rad=-arc)).value
+        == "right"
+    )
     assert behavior.turn_of(car()).value == "straight"
 
 
@@ -106,21 +111,30 @@ def test_ego_candidates_must_be_valid_throughout(synthetic_root: Path, synthetic
     intersection_map = store.read_map(synthetic_root, scenario.map_id)
     chosen = ego.candidates(scenario, intersection_map)
     assert scenario.ego_id in chosen
-    assert all(scenario.track(c).valid.all() and scenario.track(c).agent_class.is_motor_vehicle for c in chosen)
+    assert all(
+        scenario.track(c).valid.all() and scenario.track(c).agent_class.is_motor_vehicle
+        for c in chosen
+    )
     picked = ego.choose(
-        {"a": SubScenario.STR, "b": SubScenario.IPC_LFT}, datasets.Counter({BehaviorCategory.STR: 3})
+        {"a": SubScenario.STR, "b": SubScenario.IPC_LFT},
+        datasets.Counter({BehaviorCategory.STR: 3}),
     )
     assert picked == ("b", SubScenario.IPC_LFT)
 
 
-def test_curate_cli_labels_every_synthetic_clip_and_plots(synthetic_root: Path, tmp_path: Path, capsys):
+def test_curate_cli_labels_every_synthetic_clip_and_plots(
+    synthetic_root: Path, tmp_path: Path, capsys
+):
     import shutil
 
     root = tmp_path / "data"
     shutil.copytree(synthetic_root, root)
     assert main(["curate", str(root)]) == 0
     out = capsys.readouterr().out
-    assert f"{len(store.scenario_ids(root))} clips curated, {len(store.scenario_ids(root))} labelled" in out
+    assert (
+        f"{len(store.scenario_ids(root))} clips curated, {len(store.scenario_ids(root))} labelled"
+        in out
+    )
     for scenario_id in store.scenario_ids(root):
         scenario = store.read_scenario(root, scenario_id)
         assert scenario.behavior.source == "labelled" and "staged_behavior" in scenario.metadata
@@ -146,6 +160,8 @@ def test_real_samples_get_the_labels_checked_by_eye(tmp_path: Path):
     datasets.import_source(tmp_path, "commonroad", REALDATA / "commonroad")
     rows = {r.scenario_id: r for r in datasets.curate(tmp_path)}
     for scenario_id, (ego_id, label) in REAL_LABELS.items():
-        assert (rows[scenario_id].ego_id, rows[scenario_id].behavior) == (ego_id, label), scenario_id
+        assert (rows[scenario_id].ego_id, rows[scenario_id].behavior) == (ego_id, label), (
+            scenario_id
+        )
         scenario = store.read_scenario(tmp_path, scenario_id)
         assert scenario.ego.valid.all() and scenario.ego.agent_class == AgentClass.CAR

@@ -33,15 +33,14 @@ MOVING_MPS = 0.5  # the ego's heading counts only while it moves
 LANE_MATCH_M = 1.8  # the ego is on a lane when this close to its centre line and aligned
 QUEUE_REACH_M = 40.0  # stopped this close before a red stop line is stopping at red
 STANDSTILL_MPS = 0.3
-CONFLICT_RADIUS_M = (
-    1.8  # plus the other's half width: closer to a point of the ego's path occupies it
-)
+VEHICLE_CONFLICT_M = 3.2  # centres of two vehicles closer than this on the ego's path could touch
+PEDESTRIAN_CONFLICT_M = 2.5  # a pedestrian or rider this close to the ego's path is in its way
 IPC_GAP_S = 3.0  # post-encroachment time below which a pedestrian or rider interacts
 COV_GAP_S = 2.5  # post-encroachment time below which a vehicle competes with the ego
 CROSSING_RAD = np.deg2rad(30)  # a vehicle heading closer than this to the ego's is following it
-YIELD_MPS = 2.0  # slower than this before a conflict point is giving way
-YIELD_REACH_M = 15.0  # ...when within this distance of the point
-YIELD_WINDOW_S = 4.0  # ...in the seconds before the other agent took the point
+YIELD_MPS = 4.0  # slower than this before a conflict point is giving way
+YIELD_REACH_M = 25.0  # ...when within this distance of the point
+YIELD_WINDOW_S = 6.0  # ...in the seconds before the other agent took the point
 VRU_CLASSES = (
     AgentClass.PEDESTRIAN,
     AgentClass.CYCLIST,
@@ -181,7 +180,8 @@ def _conflicts(ego: Track, other: Track, crossing_only: bool) -> tuple[NDArray, 
         return np.zeros(0, int), np.zeros(0, int)
     a, b = ego.xy_m[ego_frames], other.xy_m[other_frames]
     distance = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1)
-    close = distance < CONFLICT_RADIUS_M + 0.5 * other.width_m[other_frames][None, :]
+    radius = PEDESTRIAN_CONFLICT_M if other.agent_class in VRU_CLASSES else VEHICLE_CONFLICT_M
+    close = distance < radius
     i, j = np.nonzero(close)
     moving = other.speed_mps[other_frames[j]] > MOVING_MPS
     i, j = i[moving], j[moving]
@@ -190,6 +190,12 @@ def _conflicts(ego: Track, other: Track, crossing_only: bool) -> tuple[NDArray, 
         keep = (angle > CROSSING_RAD) & (angle < np.pi - CROSSING_RAD)
         i, j = i[keep], j[keep]
     return ego_frames[i], other_frames[j]
+
+
+def _same_stream(ego_lanes: list[str], other: Track, intersection_map: IntersectionMap) -> bool:
+    """Whether `other` comes from the ego's own approach lane (a leader or follower)."""
+    other_lanes = lanes_driven(other, intersection_map)
+    return bool(ego_lanes and other_lanes and other_lanes[0] in ego_lanes[:1])
 
 
 def _interaction(ego: Track, other: Track, crossing_only: bool, red: NDArray) -> tuple[float, bool]:
@@ -258,6 +264,11 @@ def gather_evidence(
             vru_gap, yielded_vru = min(vru_gap, gap), yielded_vru or yielded
         else:
             gap, yielded = _interaction(ego, other, True, red)
+            if np.isinf(gap) and not yielded:
+                # merges meet the ego at a shallow angle: count any vehicle not from its lane
+                gap, yielded = _interaction(ego, other, False, red)
+                if (np.isfinite(gap) or yielded) and _same_stream(driven, other, intersection_map):
+                    gap, yielded = np.inf, False
             vehicle_gap, yielded_vehicle = min(vehicle_gap, gap), yielded_vehicle or yielded
     return Evidence(turn, abnormal, None if stop_line is None else stop_line.stop_line_id, signal_id, crossing,
                     crossing_state, stopped_at_red, vru_gap, vehicle_gap, yielded_vru, yielded_vehicle)  # fmt: skip

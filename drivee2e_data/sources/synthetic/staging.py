@@ -42,6 +42,8 @@ MAX_ATTEMPTS = 8
 MAX_REPAIRS = 8
 QUEUE_REACH_M = 40.0  # an ego stopped this close to a red stop line is stopping at red
 MIN_BINDING_STEPS = 3
+QUIET_TARGETS = (SubScenario.STR, SubScenario.LFT, SubScenario.RT, SubScenario.STP)
+QUIET_WINDOW_S = 40.0  # walkers due this close to the ego's arrival stay away for quiet targets
 IPC_GAP_S = 3.0  # a pedestrian in the ego's conflict zone this close in time is an interaction
 COV_GAP_S = 2.5  # another vehicle in a shared conflict zone this close in time competes
 EXIT_MARGIN_M = 5.0  # the ego is this far into its exit lane by the end of the clip  # a constraint must bind this many steps (0.3 s) to count as yielding
@@ -91,7 +93,13 @@ def _arrival_windows(
             if states[k] == SignalState.YELLOW and k > 0 and states[k - 1] == SignalState.GREEN:
                 candidates.append(time_s + 0.6)
         elif target == SubScenario.STP:
-            if (ahead == SignalState.RED).all():
+            # red now, green again in 6-14 s: a wait the clip can show, then the drive through
+            later = states[k : k + 29]
+            if (
+                len(later) == 29
+                and (later[:12] == SignalState.RED).all()
+                and (later[12:] == SignalState.GREEN).any()
+            ):
                 candidates.append(time_s)
         elif len(ahead) == 13 and (ahead == SignalState.GREEN).all():
             candidates.append(time_s)
@@ -160,6 +168,17 @@ def _attempt(
         )
     ]
     pedestrians = background_pedestrians(layout, horizon_s, rng)
+    if target in QUIET_TARGETS:
+        # A plain drive or a stop at red: no walker on the ego's crossings around its passage.
+        pedestrians = [
+            p
+            for p in pedestrians
+            if network.crossing_zone(
+                movement.movement_id, p.crossing.crossing_id, p.crossing.polygon
+            )
+            is None
+            or abs(p.spawn_time_s - arrival_s) > QUIET_WINDOW_S
+        ]
     injected_vehicles, injected_pedestrians = _helpers(
         layout, network, plan, target, movement, arrival_s, ego, rng
     )

@@ -233,7 +233,7 @@ class TrafficSimulation:
     ) -> NDArray:
         alive = [i for i in range(len(self.vehicles)) if state[i] == 1]
         self._active_pedestrians = [
-            k for k, phase in enumerate(self._ped_state) if phase in ("crossing", "waiting_go")
+            k for k, phase in enumerate(self._ped_state) if phase == "crossing"
         ]
         self._ped_xy = {
             k: self._ped_position(k, s[len(self.vehicles) + k]) for k in self._active_pedestrians
@@ -513,7 +513,7 @@ class TrafficSimulation:
             front, rear = s[j] + half, s[j] - half
             if rear >= zone[1]:
                 continue
-            if front >= zone[0] - 1.0 or (v[j] > 1.0 and zone[0] - front < 2.0 + 3.0 * v[j]):
+            if front >= zone[0] or (v[j] > 1.0 and zone[0] - front < 2.0 + 3.0 * v[j]):
                 return False
         return True
 
