@@ -166,7 +166,9 @@ def _scenarios(args: argparse.Namespace) -> int:
             for name, counts in stats.items():
                 print(f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
         if args.plot:
-            figures.plot_statistics(stats, args.plot, title=str(args.data))
+            figures.plot_statistics(
+                stats, args.plot, title=f"{args.data.name}: {len(summaries)} clips"
+            )
             print(f"wrote {args.plot}")
     return 0
 
