@@ -176,3 +176,25 @@ def test_import_cli_writes_and_lists(tmp_path: Path, capsys):
     assert "vehicle: mapped to car (25)" in out and "dropped" in out
     assert main(["scenarios", str(tmp_path)]) == 0
     assert datasets.summarize(tmp_path)[0].agents[AgentClass.CAR] == 25
+
+
+def test_sind_vehicle_tracks_when_present(tmp_path: Path):
+    """The shared sample has no vehicle file; one in SinD's documented layout is read too."""
+    import shutil
+
+    city = tmp_path / "Xian"
+    shutil.copytree(REALDATA / "sind" / "Data" / "Xian", city)
+    rows = ["track_id,frame_id,timestamp_ms,agent_type,x,y,vx,vy,yaw_rad,heading_rad,length,width"]
+    for k in range(50):
+        rows.append(f"7,{k},{100.1 * k:.1f},car,{-30 + k:.2f},4.0,10.0,0.0,0.0,0.0,4.7,1.9")
+        rows.append(
+            f"8,{k},{100.1 * k:.1f},tricycle,5.0,{-30 + 0.5 * k:.2f},0.0,5.0,1.5708,1.5708,2.6,1.1"
+        )
+    (city / "Xian_412_m1" / "Veh_smoothed_tracks.csv").write_text("\n".join(rows) + "\n")
+    imported = sind.import_sind(city)
+    car = imported.recording.track("7")
+    assert car.agent_class == AgentClass.CAR and car.length_m[car.valid][0] == pytest.approx(4.7)
+    assert imported.recording.track("8").agent_class == AgentClass.TRICYCLIST
+    assert np.allclose(
+        car.vx_mps[car.valid][1:-1], 10.0 / 1.001, atol=0.05
+    )  # frames 100.1 ms apart
