@@ -164,7 +164,7 @@ class Conditions(ArrayValueEq):
         object.__setattr__(self, "start_time_utc", self.start_time_utc.astimezone(timezone.utc))
 
 
-_TRACK_ARRAYS = (
+TRACK_ARRAYS = (
     "x_m",
     "y_m",
     "z_m",
@@ -213,7 +213,7 @@ class Track(ArrayValueEq):
         if valid.ndim != 1:
             raise ScenarioFormatError(f"{where}: valid must be 1-D, got shape {valid.shape}")
         object.__setattr__(self, "valid", valid)
-        for name in _TRACK_ARRAYS:
+        for name in TRACK_ARRAYS:
             values = frozen_array(getattr(self, name), np.float64)
             if values.shape != valid.shape:
                 raise ScenarioFormatError(

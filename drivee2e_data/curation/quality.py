@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.geometry import wrap_angle
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.scenario import AgentClass, Scenario, Track
+from drivee2e_data.scenario import TRACK_ARRAYS, AgentClass, Scenario, Track
 
 FRAME_S = 0.1
 MAX_REPAIR_GAP_FRAMES = 10  # gaps up to 1 s are bridged by interpolation
@@ -67,8 +67,7 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
 
 
 def _arrays(track: Track) -> dict[str, NDArray]:
-    names = ("x_m", "y_m", "z_m", "yaw_rad", "length_m", "width_m", "height_m", "vx_mps", "vy_mps")
-    return {name: np.array(getattr(track, name)) for name in names}
+    return {name: np.array(getattr(track, name)) for name in TRACK_ARRAYS}
 
 
 def _remove_teleports(track: Track, arrays: dict, valid: NDArray, actions: list[str]) -> None:

@@ -11,7 +11,7 @@ enters the intersection, and flagged as derived.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -325,21 +325,7 @@ def _clip_to_map(track: Track, reach: shapely.Geometry) -> Track | None:
         return None
     if inside.all() or np.array_equal(inside, track.valid):
         return track
-    fields = {
-        name: getattr(track, name)
-        for name in (
-            "x_m",
-            "y_m",
-            "z_m",
-            "yaw_rad",
-            "length_m",
-            "width_m",
-            "height_m",
-            "vx_mps",
-            "vy_mps",
-        )
-    }
-    return Track(track.track_id, track.agent_class, valid=inside, metadata=track.metadata, **fields)
+    return replace(track, valid=inside)
 
 
 # ------------------------------------------------------------------------------ sensor logs
@@ -504,11 +490,7 @@ def import_sensor_log(folder: Path) -> Imported:
 def _with_obstacles(
     intersection_map: IntersectionMap, obstacles: list[StaticObstacle]
 ) -> IntersectionMap:
-    fields = {
-        name: getattr(intersection_map, name) for name in intersection_map.__dataclass_fields__
-    }
-    fields["static_obstacles"] = tuple(obstacles)
-    return IntersectionMap(**fields)
+    return replace(intersection_map, static_obstacles=tuple(obstacles))
 
 
 # ------------------------------------------------------------------------------ forecasting

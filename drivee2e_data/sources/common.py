@@ -8,7 +8,7 @@ import csv
 import math
 from collections import Counter
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -18,7 +18,14 @@ from pyproj import Transformer
 
 from drivee2e_data.errors import ScenarioFormatError
 from drivee2e_data.hdmap import GeoOrigin
-from drivee2e_data.scenario import FRAME_PERIOD_NS, AgentClass, Scenario, TimeOfDay, Track
+from drivee2e_data.scenario import (
+    FRAME_PERIOD_NS,
+    TRACK_ARRAYS,
+    AgentClass,
+    Scenario,
+    TimeOfDay,
+    Track,
+)
 
 # Typical (length, width, height) in metres, used where a source gives no box size.
 TYPICAL_SIZE_M = {
@@ -184,24 +191,8 @@ def cut_clips(
 
 
 def _slice_track(track: Track, window: slice) -> Track:
-    arrays = {
-        name: getattr(track, name)[window]
-        for name in (
-            "x_m",
-            "y_m",
-            "z_m",
-            "yaw_rad",
-            "length_m",
-            "width_m",
-            "height_m",
-            "vx_mps",
-            "vy_mps",
-            "valid",
-        )
-    }
-    return Track(
-        track_id=track.track_id, agent_class=track.agent_class, metadata=track.metadata, **arrays
-    )
+    arrays = {name: getattr(track, name)[window] for name in (*TRACK_ARRAYS, "valid")}
+    return replace(track, **arrays)
 
 
 # ---------------------------------------------------------------- geodesy

@@ -10,7 +10,7 @@ lat/lon with the UTM zone of the origin, minus the origin's own projection (the 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -162,13 +162,14 @@ def _topology(lanes: list[Lane]) -> list[Lane]:
             if lanes[k].lane_id != lane.lane_id:
                 successors[lane.lane_id].append(lanes[k].lane_id)
                 predecessors[lanes[k].lane_id].append(lane.lane_id)
-    result = []
-    for lane in lanes:
-        fields = {name: getattr(lane, name) for name in lane.__dataclass_fields__}
-        fields["successors"] = tuple(successors[lane.lane_id])
-        fields["predecessors"] = tuple(predecessors[lane.lane_id])
-        result.append(Lane(**fields))
-    return result
+    return [
+        replace(
+            lane,
+            successors=tuple(successors[lane.lane_id]),
+            predecessors=tuple(predecessors[lane.lane_id]),
+        )
+        for lane in lanes
+    ]
 
 
 def _zebra_crosswalks(osm: OsmData) -> list[Crosswalk]:
@@ -289,10 +290,7 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
                 )
             )
     shown = {head.signal_id for head in heads}
-    lanes = [
-        lane if lane.signal_id in shown or lane.signal_id is None else _without_signal(lane)
-        for lane in lanes
-    ]
+    lanes = [lane if lane.signal_id in shown else replace(lane, signal_id=None) for lane in lanes]
     kerbs = tuple(
         Kerb(f"kerb_{way_id}", _line(osm, way_id), 0.15 if tags.get("subtype") != "high" else 0.25)
         for way_id, (refs, tags) in osm.ways.items()
@@ -321,9 +319,3 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
             "projection": f"UTM zone {utm_zone_of(osm.origin.longitude_deg)}",
         },
     )
-
-
-def _without_signal(lane: Lane) -> Lane:
-    fields = {name: getattr(lane, name) for name in lane.__dataclass_fields__}
-    fields["signal_id"] = None
-    return Lane(**fields)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import ast
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -378,13 +378,10 @@ def read_traffic_lights(
         lane: f"light_{lane}_1" for _, _, lane in heads.values() if f"light_{lane}_1" in heads
     }
     lanes = tuple(
-        _with_signal(lane, first_slot.get(lane.lane_id)) for lane in intersection_map.lanes
+        replace(lane, signal_id=first_slot[lane.lane_id]) if lane.lane_id in first_slot else lane
+        for lane in intersection_map.lanes
     )
-    fields = {
-        name: getattr(intersection_map, name) for name in intersection_map.__dataclass_fields__
-    }
-    fields.update(lanes=lanes, signal_heads=signal_heads)
-    return timelines, IntersectionMap(**fields)
+    return timelines, replace(intersection_map, lanes=lanes, signal_heads=signal_heads)
 
 
 def _facing(direction: str) -> float:
@@ -404,14 +401,6 @@ def _facing(direction: str) -> float:
     except ValueError:
         degrees = 0.0
     return float(np.deg2rad(degrees))
-
-
-def _with_signal(lane: Lane, signal_id: str | None) -> Lane:
-    if signal_id is None:
-        return lane
-    fields = {name: getattr(lane, name) for name in lane.__dataclass_fields__}
-    fields["signal_id"] = signal_id
-    return Lane(**fields)
 
 
 def import_v2x_seq(trajectories: Path, lights: Path | None, hdmap: Path) -> V2XImport:

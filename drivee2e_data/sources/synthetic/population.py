@@ -7,6 +7,7 @@ import shapely
 
 from drivee2e_data.hdmap import TurnDirection
 from drivee2e_data.scenario import AgentClass
+from drivee2e_data.sources.common import TYPICAL_SIZE_M
 from drivee2e_data.sources.synthetic.layout import (
     CROSSWALK_WIDTH_M,
     LANE_WIDTH_M,
@@ -18,17 +19,6 @@ from drivee2e_data.sources.synthetic.layout import (
 )
 from drivee2e_data.sources.synthetic.traffic import Crossing, PedestrianSpec, VehicleSpec
 
-# length, width, height (m) of a typical agent of each class; each agent varies by +-8%
-CLASS_SIZE_M = {
-    AgentClass.CAR: (4.6, 1.85, 1.5),
-    AgentClass.VAN: (5.2, 2.0, 2.1),
-    AgentClass.TRUCK: (8.0, 2.5, 3.4),
-    AgentClass.BUS: (11.5, 2.55, 3.2),
-    AgentClass.PEDESTRIAN: (0.6, 0.6, 1.72),
-    AgentClass.CYCLIST: (1.8, 0.65, 1.7),
-    AgentClass.TRICYCLIST: (2.8, 1.2, 1.8),
-    AgentClass.MOTORCYCLIST: (2.1, 0.8, 1.6),
-}
 # desired speed range (m/s) per class
 CLASS_SPEED_MPS = {
     AgentClass.CAR: (11.0, 15.0),
@@ -60,7 +50,7 @@ LARGE = (AgentClass.TRUCK, AgentClass.BUS)
 
 
 def sized(agent_class: AgentClass, rng: np.random.Generator) -> tuple[float, float, float]:
-    base = CLASS_SIZE_M[agent_class]
+    base = TYPICAL_SIZE_M[agent_class]
     scale = rng.uniform(0.92, 1.08, size=3)
     return (float(base[0] * scale[0]), float(base[1] * scale[1]), float(base[2] * scale[2]))
 
