@@ -239,12 +239,9 @@ def _movements(
                 target = targets[turn]
                 lanes_with_turn = [k for k, a in enumerate(permissions) if turn in a]
                 rank = lanes_with_turn.index(lane)
-                if turn == TurnDirection.RIGHT:
-                    out_lane = target.lanes_out - 1
-                elif turn == TurnDirection.LEFT:
-                    out_lane = min(rank, target.lanes_out - 1)
-                else:
-                    out_lane = min(rank, target.lanes_out - 1)
+                # right turns keep to the kerb; others fill exit lanes from the left
+                last = target.lanes_out - 1
+                out_lane = last if turn == TurnDirection.RIGHT else min(rank, last)
                 signal = left_signal if turn == TurnDirection.LEFT else through_signal_id(arm.index)
                 movements.append(_movement(arm, lane, target, out_lane, turn, signal))
         # The leftmost lane may U-turn into the outermost outgoing lane of its own arm; any other
