@@ -10,6 +10,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from drivee2e_data import __version__, datasets, figures
+from drivee2e_data.datasets import write_view
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import AgentClass
 
@@ -62,6 +63,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="cut longer recordings into clips this long",
     )
 
+    view = commands.add_parser("view", help="contact sheet of one frame: six views and a top view")
+    view.add_argument("data", type=Path, help="data root")
+    view.add_argument("scenario_id")
+    view.add_argument("--frame", type=int, default=0)
+    view.add_argument("--out", type=Path, required=True, help="PNG to write")
+    view.add_argument("--renderer", choices=("auto", "egl", "tiny"), default="auto")
+
     curate = commands.add_parser("curate", help="score tracks, choose egos, label behaviours")
     curate.add_argument("data", type=Path, help="data root")
 
@@ -106,6 +114,12 @@ def _import(args: argparse.Namespace) -> int:
         print("\n".join(lines))
     for warning in summary.report.warnings:
         print(f"warning: {warning}", file=sys.stderr)
+    return 0
+
+
+def _view(args: argparse.Namespace) -> int:
+    write_view(args.data, args.scenario_id, args.frame, args.out, args.renderer)
+    print(f"wrote {args.out}")
     return 0
 
 
@@ -175,7 +189,13 @@ def _scenarios(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"synth": _synth, "import": _import, "curate": _curate, "scenarios": _scenarios}
+    handlers = {
+        "synth": _synth,
+        "import": _import,
+        "curate": _curate,
+        "view": _view,
+        "scenarios": _scenarios,
+    }
     try:
         return handlers[args.command](args)
     except DriveE2EError as error:

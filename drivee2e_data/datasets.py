@@ -344,3 +344,23 @@ def statistics(summaries: list[ScenarioSummary]) -> dict[str, Counter[str]]:
     time_of_day = Counter({t.value: 0 for t in TimeOfDay})
     time_of_day.update(s.time_of_day for s in summaries)
     return dict(zip(STATISTIC_PANELS, (behaviour, classes, weather, time_of_day), strict=True))
+
+
+def write_view(root: Path, scenario_id: str, frame: int, out: Path, renderer: str = "auto") -> None:
+    """Render the contact sheet of one frame of a stored scenario to a PNG."""
+    import cv2
+
+    from drivee2e_data.sim.contact_sheet import contact_sheet
+    from drivee2e_data.sim.world import World
+
+    scenario = store.read_scenario(root, scenario_id)
+    if not 0 <= frame < scenario.num_frames:
+        raise DriveE2EError(f"{scenario_id}: frame {frame} is outside 0..{scenario.num_frames - 1}")
+    if scenario.ego is None:
+        raise DriveE2EError(f"{scenario_id}: no ego to view from; run `drivee2e curate` first")
+    with World(store.read_map(root, scenario.map_id), scenario, renderer) as world:
+        sheet = contact_sheet(world, frame)
+    ok, encoded = cv2.imencode(".png", sheet[:, :, ::-1])
+    if not ok:
+        raise DriveE2EError(f"{out}: PNG encoding failed")
+    store.write_bytes_atomic(Path(out), encoded.tobytes())

@@ -1,0 +1,88 @@
+"""Actor blueprints: a shape per class and size, coloured deterministically per track.
+
+The annotation box of an actor is its blueprint's box (as the paper adjusts boxes to the asset
+used); the source's size is kept beside it, so the size error can be reported.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivee2e_data.scenario import AgentClass, Track
+
+# (name, length, width, height) of the blueprints; a track takes the nearest of its class.
+BLUEPRINTS: dict[AgentClass, tuple[tuple[str, float, float, float], ...]] = {
+    AgentClass.CAR: (
+        ("sedan", 4.6, 1.85, 1.45),
+        ("compact", 3.9, 1.7, 1.45),
+        ("suv", 4.8, 1.95, 1.75),
+    ),
+    AgentClass.VAN: (("van", 5.2, 2.0, 2.1), ("minibus", 6.0, 2.1, 2.5)),
+    AgentClass.TRUCK: (("box_truck", 7.5, 2.5, 3.4), ("truck", 10.0, 2.5, 3.6)),
+    AgentClass.BUS: (("bus", 11.5, 2.55, 3.2), ("articulated_bus", 18.0, 2.55, 3.2)),
+    AgentClass.PEDESTRIAN: (("pedestrian", 0.6, 0.6, 1.72),),
+    AgentClass.CYCLIST: (("bicycle_with_rider", 1.8, 0.65, 1.7),),
+    AgentClass.TRICYCLIST: (("tricycle_with_rider", 2.8, 1.2, 1.8),),
+    AgentClass.MOTORCYCLIST: (("motorcycle_with_rider", 2.1, 0.8, 1.6),),
+}
+
+
+@dataclass(frozen=True)
+class Blueprint:
+    name: str
+    size_m: tuple[float, float, float]  # length, width, height: the annotation box
+    rgba: tuple[float, float, float, float]
+
+
+def choose_blueprint(track: Track) -> Blueprint:
+    """The blueprint of the track's class nearest its median logged size; a colour from its id."""
+    valid = track.valid
+    logged = np.array(
+        [
+            np.median(track.length_m[valid]),
+            np.median(track.width_m[valid]),
+            np.median(track.height_m[valid]),
+        ]
+    )
+    options = BLUEPRINTS[track.agent_class]
+    name, *size = min(options, key=lambda o: float(np.abs(np.array(o[1:]) - logged).sum()))
+    digest = hashlib.sha256(track.track_id.encode()).digest()
+    rgba = (
+        0.15 + 0.7 * digest[0] / 255,
+        0.15 + 0.7 * digest[1] / 255,
+        0.15 + 0.7 * digest[2] / 255,
+        1.0,
+    )
+    return Blueprint(name, (float(size[0]), float(size[1]), float(size[2])), rgba)
+
+
+def create_actor(client: int, blueprint: Blueprint) -> int:
+    """A pybullet body for the blueprint, its origin at the box centre."""
+    import pybullet
+
+    length, width, height = blueprint.size_m
+    if blueprint.name == "pedestrian":
+        shapes = [(pybullet.GEOM_CYLINDER, {"radius": 0.22, "length": height * 0.75}, [0, 0, -height * 0.1], blueprint.rgba),
+                  (pybullet.GEOM_SPHERE, {"radius": 0.12}, [0, 0, height * 0.38], (0.85, 0.7, 0.6, 1.0))]  # fmt: skip
+    elif "rider" in blueprint.name:
+        shapes = [(pybullet.GEOM_BOX, {"halfExtents": [length / 2, width / 4, height / 4]}, [0, 0, -height / 4], (0.1, 0.1, 0.1, 1.0)),
+                  (pybullet.GEOM_BOX, {"halfExtents": [0.2, width / 2, height / 4]}, [0, 0, height / 4], blueprint.rgba)]  # fmt: skip
+    else:
+        cabin = 0.45 if blueprint.name in ("sedan", "compact", "suv") else 0.9
+        shapes = [(pybullet.GEOM_BOX, {"halfExtents": [length / 2, width / 2, height * 0.3]}, [0, 0, -height * 0.2], blueprint.rgba),
+                  (pybullet.GEOM_BOX, {"halfExtents": [length * cabin / 2, width * 0.45, height * 0.2]},
+                   [-length * (1 - cabin) * 0.1, 0, height * 0.3], (0.15, 0.2, 0.25, 1.0))]  # fmt: skip
+    kinds, extras, offsets, colours = zip(*shapes, strict=True)
+    visual = pybullet.createVisualShapeArray(
+        shapeTypes=list(kinds),
+        halfExtents=[e.get("halfExtents", [0, 0, 0]) for e in extras],
+        radii=[e.get("radius", 0.0) for e in extras],
+        lengths=[e.get("length", 0.0) for e in extras],
+        rgbaColors=[list(c) for c in colours],
+        visualFramePositions=[list(o) for o in offsets],
+        physicsClientId=client,
+    )
+    return pybullet.createMultiBody(0, -1, visual, [0, 0, -100], physicsClientId=client)

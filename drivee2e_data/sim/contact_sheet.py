@@ -1,0 +1,81 @@
+"""A contact sheet for a person to look at: six surround views from the ego and a top view."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sim.world import World
+
+# name, yaw offset from the ego's heading (deg), horizontal field of view (deg): nuScenes-like
+SURROUND_VIEWS = (
+    ("CAM_FRONT_LEFT", 55.0, 70.0),
+    ("CAM_FRONT", 0.0, 70.0),
+    ("CAM_FRONT_RIGHT", -55.0, 70.0),
+    ("CAM_BACK_LEFT", 110.0, 70.0),
+    ("CAM_BACK", 180.0, 110.0),
+    ("CAM_BACK_RIGHT", -110.0, 70.0),
+)
+CAMERA_HEIGHT_M = 1.6
+TILE = (480, 270)  # width, height of each surround view
+TOP_VIEW_HALF_WIDTH_M = 60.0
+
+
+def surround(
+    world: World, ego_xy_m: NDArray, ego_yaw_rad: float
+) -> list[tuple[str, NDArray[np.uint8]]]:
+    width, height = TILE
+    views = []
+    for name, offset_deg, horizontal_fov in SURROUND_VIEWS:
+        yaw = ego_yaw_rad + np.deg2rad(offset_deg)
+        eye = np.array([ego_xy_m[0], ego_xy_m[1], CAMERA_HEIGHT_M])
+        target = eye + np.array([np.cos(yaw), np.sin(yaw), 0.0]) * 10.0
+        vertical = np.rad2deg(
+            2 * np.arctan(np.tan(np.deg2rad(horizontal_fov) / 2) * height / width)
+        )
+        views.append((name, world.render(eye, target, width, height, float(vertical)).rgb))
+    return views
+
+
+def top_view(world: World, centre_xy_m: NDArray, size_px: int) -> NDArray[np.uint8]:
+    altitude = 150.0
+    fov = float(np.rad2deg(2 * np.arctan(TOP_VIEW_HALF_WIDTH_M / altitude)))
+    eye = np.array([centre_xy_m[0], centre_xy_m[1], altitude])
+    target = np.array([centre_xy_m[0], centre_xy_m[1] + 1e-3, 0.0])
+    return world.render(eye, target, size_px, size_px, fov, far_m=400.0).rgb
+
+
+def contact_sheet(world: World, frame: int) -> NDArray[np.uint8]:
+    """(H, W, 3) RGB: the six views in two rows beside a square top view, each labelled."""
+
+    ego = world.scenario.ego
+    if ego is None:
+        raise ValueError(f"scenario {world.scenario.scenario_id!r} has no ego; run drivee2e curate")
+    xy = ego.xy_m[frame]
+    world.place_ego(float(xy[0]), float(xy[1]), ego.track_id)
+    world.set_time(frame)
+    tiles = surround(world, xy, float(ego.yaw_rad[frame]))
+    world.place_ego(float(xy[0]), float(xy[1]), None)  # the top view shows the ego too
+    world.set_time(frame)
+    width, height = TILE
+    top = top_view(world, xy, 2 * height)
+    labelled = []
+    for name, image in tiles:
+        image = np.ascontiguousarray(image)
+        _label(image, name, (8, 22))
+        labelled.append(image)
+    rows = [np.concatenate(labelled[:3], axis=1), np.concatenate(labelled[3:], axis=1)]
+    sheet = np.concatenate([np.concatenate(rows, axis=0), np.ascontiguousarray(top)], axis=1)
+    caption = f"{world.scenario.scenario_id}  frame {frame}  renderer {world.renderer}"
+    _label(sheet, caption, (3 * width + 8, 22))
+    return sheet
+
+
+def _label(image: NDArray[np.uint8], text: str, origin: tuple[int, int]) -> None:
+    """White text with a dark outline, readable on sky and on road."""
+    import cv2
+
+    for colour, thickness in (((0, 0, 0), 4), ((255, 255, 255), 1)):
+        cv2.putText(
+            image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, thickness, cv2.LINE_AA
+        )

@@ -1,0 +1,276 @@
+"""A digital twin of an intersection: its `IntersectionMap` as pybullet bodies.
+
+Flat surfaces are triangulated meshes lifted a few millimetres apart so that road, markings,
+crosswalks and stop lines never fight for depth: road at 0, sidewalks raised to their kerb
+height, paint 5 mm above the road. Buildings are extruded footprints, trees a trunk and a crown,
+signals a pole with one head whose three lamps `Twin.show` lights by state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+import shapely.ops
+from numpy.typing import NDArray
+
+from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
+from drivee2e_data.scenario import SignalState
+
+PAINT_Z_M = 0.005  # markings sit this far above the road
+ROAD_RGBA = (0.28, 0.28, 0.3, 1.0)
+SIDEWALK_RGBA = (0.62, 0.6, 0.56, 1.0)
+WHITE_RGBA = (0.92, 0.92, 0.9, 1.0)
+YELLOW_RGBA = (0.95, 0.75, 0.1, 1.0)
+BUILDING_RGBA = (0.55, 0.55, 0.62, 1.0)
+GROUND_RGBA = (0.42, 0.5, 0.32, 1.0)
+GROUND_MARGIN_M = 150.0  # the ground reaches this far beyond the road's bounding box
+LAMP_ON = {
+    SignalState.RED: (1.0, 0.05, 0.05, 1.0),
+    SignalState.YELLOW: (1.0, 0.8, 0.0, 1.0),
+    SignalState.GREEN: (0.05, 1.0, 0.2, 1.0),
+}
+LAMP_OFF_RGBA = (0.12, 0.12, 0.12, 1.0)
+LINE_WIDTH_M = 0.15
+STOP_LINE_WIDTH_M = 0.4
+DASH_M, GAP_M = 3.0, 6.0
+ZEBRA_STRIPE_M = 0.5
+
+
+@dataclass
+class Twin:
+    """Body ids of one built twin, and the lamps of each signal (red, yellow, green)."""
+
+    client: int
+    bodies: list[int] = field(default_factory=list)
+    lamps: dict[str, list[tuple[int, SignalState]]] = field(default_factory=dict)
+    segmentation: dict[int, str] = field(default_factory=dict)  # body id -> element kind
+
+    def show(self, states: dict[str, SignalState]) -> None:
+        """Light each signal's lamp for its state (all dark for unknown or off)."""
+        import pybullet
+
+        for signal_id, lamps in self.lamps.items():
+            state = states.get(signal_id, SignalState.UNKNOWN)
+            for body, colour in lamps:
+                rgba = LAMP_ON[colour] if colour == state else LAMP_OFF_RGBA
+                pybullet.changeVisualShape(body, -1, rgbaColor=rgba, physicsClientId=self.client)
+
+
+def triangulate(polygon: shapely.Geometry) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """Vertices `(V, 2)` and triangle indices `(3T,)` covering a (possibly concave) polygon."""
+    triangles = shapely.constrained_delaunay_triangles(shapely.make_valid(polygon))
+    vertices, indices = [], []
+    for triangle in getattr(triangles, "geoms", [triangles]):
+        if triangle.is_empty:
+            continue
+        corners = np.asarray(triangle.exterior.coords)[:3]
+        if _signed_area(corners) < 0:
+            corners = corners[::-1]
+        indices.extend(range(len(vertices), len(vertices) + 3))
+        vertices.extend(corners.tolist())
+    return np.asarray(vertices, dtype=np.float64).reshape(-1, 2), np.asarray(
+        indices, dtype=np.int32
+    )
+
+
+def _signed_area(corners: NDArray) -> float:
+    (x0, y0), (x1, y1), (x2, y2) = corners
+    return 0.5 * ((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0))
+
+
+class TwinBuilder:
+    """Adds a map's elements to a pybullet client."""
+
+    def __init__(self, client: int) -> None:
+        import pybullet
+
+        self.p, self.client = pybullet, client
+        self.twin = Twin(client)
+
+    def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str) -> None:
+        vertices, indices = triangulate(geometry)
+        if len(indices) == 0:
+            return
+        vertices_3d = np.column_stack([vertices, np.full(len(vertices), z_m)])
+        shape = self.p.createVisualShape(
+            self.p.GEOM_MESH, vertices=vertices_3d.tolist(), indices=indices.tolist(),
+            rgbaColor=rgba, physicsClientId=self.client,
+        )  # fmt: skip
+        body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
+        self.twin.bodies.append(body)
+        self.twin.segmentation[body] = kind
+
+    def _prism(
+        self, footprint: NDArray, bottom_m: float, top_m: float, rgba: tuple, kind: str
+    ) -> None:
+        """An extruded polygon (walls and a roof) as one mesh."""
+        ring = np.asarray(shapely.Polygon(footprint).exterior.coords)[:-1]
+        if _signed_area(ring[:3]) < 0 and shapely.Polygon(ring).exterior.is_ccw is False:
+            ring = ring[::-1]
+        vertices, indices = [], []
+        for k in range(len(ring)):
+            a, b = ring[k], ring[(k + 1) % len(ring)]
+            base = len(vertices)
+            vertices += [[*a, bottom_m], [*b, bottom_m], [*b, top_m], [*a, top_m]]
+            indices += [base, base + 1, base + 2, base, base + 2, base + 3]
+        roof, roof_indices = triangulate(shapely.Polygon(ring))
+        base = len(vertices)
+        vertices += [[x, y, top_m] for x, y in roof]
+        indices += (roof_indices + base).tolist()
+        shape = self.p.createVisualShape(
+            self.p.GEOM_MESH,
+            vertices=vertices,
+            indices=indices,
+            rgbaColor=rgba,
+            physicsClientId=self.client,
+        )
+        body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
+        self.twin.bodies.append(body)
+        self.twin.segmentation[body] = kind
+
+    def _line_paint(self, line: NDArray, mark: LaneMark, kind: str) -> None:
+        if mark.pattern == MarkPattern.NONE:
+            return
+        rgba = YELLOW_RGBA if mark.colour == MarkColour.YELLOW else WHITE_RGBA
+        geometry = shapely.LineString(line[:, :2])
+        offsets = [0.0]
+        if mark.pattern in (MarkPattern.DOUBLE_SOLID, MarkPattern.DOUBLE_DASHED,
+                            MarkPattern.SOLID_DASHED, MarkPattern.DASHED_SOLID):  # fmt: skip
+            offsets = [-0.15, 0.15]
+        pieces = []
+        for index, offset in enumerate(offsets):
+            side = geometry.offset_curve(offset) if offset else geometry
+            dashed = (
+                mark.pattern in (MarkPattern.DASHED, MarkPattern.DOUBLE_DASHED)
+                or (mark.pattern == MarkPattern.SOLID_DASHED and index == 1)
+                or (mark.pattern == MarkPattern.DASHED_SOLID and index == 0)
+            )
+            if dashed:
+                for start in np.arange(0.0, side.length, DASH_M + GAP_M):
+                    pieces.append(
+                        shapely.ops.substring(side, start, min(start + DASH_M, side.length))
+                    )
+            else:
+                pieces.append(side)
+        paint = shapely.union_all(
+            [piece.buffer(0.5 * LINE_WIDTH_M, cap_style="flat") for piece in pieces]
+        )
+        self._flat(paint, PAINT_Z_M, rgba, kind)
+
+    def build(self, intersection_map: IntersectionMap) -> Twin:
+        m = intersection_map
+        road = m.drivable_union()
+        self._flat(
+            road.envelope.buffer(GROUND_MARGIN_M, join_style="mitre"), -0.03, GROUND_RGBA, "ground"
+        )
+        self._flat(road, 0.0, ROAD_RGBA, "road")
+        for area in m.sidewalks:
+            self._prism(area.polygon_m, -0.05, area.kerb_height_m, SIDEWALK_RGBA, "sidewalk")
+        for lane in m.lanes:
+            if not lane.is_intersection:
+                self._line_paint(lane.left_boundary_m, lane.left_mark, "road_mark")
+                self._line_paint(lane.right_boundary_m, lane.right_mark, "road_mark")
+        for crosswalk in m.crosswalks:
+            self._flat(_zebra(crosswalk.polygon_m), PAINT_Z_M, WHITE_RGBA, "crosswalk")
+        for stop_line in m.stop_lines:
+            band = shapely.LineString(stop_line.line_m[:, :2]).buffer(
+                0.5 * STOP_LINE_WIDTH_M, cap_style="flat"
+            )
+            self._flat(band, 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
+        for building in m.buildings:
+            self._prism(building.footprint_m, 0.0, building.height_m, BUILDING_RGBA, "building")
+        for tree in m.trees:
+            self._tree(tree.position_m, tree.height_m, tree.crown_radius_m)
+        for head in m.signal_heads:
+            self._signal(head.signal_id, head.position_m, head.facing_yaw_rad)
+        for obstacle in m.static_obstacles:
+            self._box(
+                obstacle.position_m,
+                obstacle.yaw_rad,
+                obstacle.size_m,
+                (1.0, 0.45, 0.0, 1.0),
+                "obstacle",
+            )
+        return self.twin
+
+    def _box(self, centre: NDArray, yaw: float, size: NDArray, rgba: tuple, kind: str) -> int:
+        shape = self.p.createVisualShape(
+            self.p.GEOM_BOX,
+            halfExtents=(0.5 * np.asarray(size)).tolist(),
+            rgbaColor=rgba,
+            physicsClientId=self.client,
+        )
+        body = self.p.createMultiBody(
+            0, -1, shape, np.asarray(centre).tolist(), self.p.getQuaternionFromEuler([0, 0, yaw]),
+            physicsClientId=self.client,
+        )  # fmt: skip
+        self.twin.bodies.append(body)
+        self.twin.segmentation[body] = kind
+        return body
+
+    def _tree(self, position: NDArray, height_m: float, crown_m: float) -> None:
+        trunk = self.p.createVisualShape(self.p.GEOM_CYLINDER, radius=0.15, length=height_m * 0.6,
+                                         rgbaColor=(0.4, 0.28, 0.15, 1.0), physicsClientId=self.client)  # fmt: skip
+        crown = self.p.createVisualShape(self.p.GEOM_SPHERE, radius=crown_m, rgbaColor=(0.2, 0.5, 0.2, 1.0),
+                                         physicsClientId=self.client)  # fmt: skip
+        for shape, z in ((trunk, height_m * 0.3), (crown, height_m - crown_m)):
+            body = self.p.createMultiBody(
+                0, -1, shape, [*position[:2], z], physicsClientId=self.client
+            )
+            self.twin.bodies.append(body)
+            self.twin.segmentation[body] = "vegetation"
+
+    def _signal(self, signal_id: str, position: NDArray, facing_rad: float) -> None:
+        x, y, z = position
+        self._box(
+            np.array([x, y, 0.5 * z]),
+            0.0,
+            np.array([0.15, 0.15, z]),
+            (0.2, 0.2, 0.2, 1.0),
+            "signal",
+        )
+        self._box(
+            np.array([x, y, z + 0.45]),
+            facing_rad,
+            np.array([0.3, 0.35, 1.0]),
+            (0.08, 0.08, 0.08, 1.0),
+            "signal",
+        )
+        forward = np.array([np.cos(facing_rad), np.sin(facing_rad)])
+        lamps = []
+        for index, colour in enumerate((SignalState.RED, SignalState.YELLOW, SignalState.GREEN)):
+            shape = self.p.createVisualShape(self.p.GEOM_SPHERE, radius=0.12, rgbaColor=LAMP_OFF_RGBA,
+                                             physicsClientId=self.client)  # fmt: skip
+            centre = [*(np.array([x, y]) + 0.17 * forward), z + 0.8 - 0.3 * index]
+            body = self.p.createMultiBody(0, -1, shape, centre, physicsClientId=self.client)
+            self.twin.bodies.append(body)
+            self.twin.segmentation[body] = "signal"
+            lamps.append((body, colour))
+        self.twin.lamps.setdefault(signal_id, []).extend(lamps)
+
+
+def _zebra(polygon_m: NDArray) -> shapely.Geometry:
+    """Stripes across the walking direction: parallel to the crosswalk's longer side."""
+    polygon = shapely.Polygon(polygon_m)
+    rectangle = np.asarray(polygon.minimum_rotated_rectangle.exterior.coords)[:4]
+    sides = [rectangle[1] - rectangle[0], rectangle[2] - rectangle[1]]
+    walk = sides[0] if np.linalg.norm(sides[0]) > np.linalg.norm(sides[1]) else sides[1]
+    along = walk / np.linalg.norm(walk)
+    origin = rectangle.mean(axis=0)
+    length = float(np.linalg.norm(walk))
+    across = np.array([-along[1], along[0]])
+    stripes = []
+    for offset in np.arange(-0.5 * length + 0.25, 0.5 * length, 2 * ZEBRA_STRIPE_M):
+        centre = origin + offset * along
+        stripes.append(
+            shapely.LineString([centre - 20 * across, centre + 20 * across]).buffer(
+                0.5 * ZEBRA_STRIPE_M, cap_style="flat"
+            )
+        )
+    return shapely.union_all(stripes).intersection(polygon.buffer(-0.1))
+
+
+def build_twin(intersection_map: IntersectionMap, client: int) -> Twin:
+    return TwinBuilder(client).build(intersection_map)

@@ -1,0 +1,176 @@
+"""One pybullet world replaying one clip: the intersection's twin, an actor per track placed at
+its logged pose for a frame, and the signals showing their logged states.
+
+The renderer is chosen at run time: EGL (`ER_BULLET_HARDWARE_OPENGL` through pybullet's
+`eglRenderer` plugin, a GPU or Mesa's llvmpipe) when it loads, else TinyRenderer; the choice is
+logged once per process. The ego is placed by the caller (logged pose for collection, controlled
+pose for closed loop). Actors farther than `draw_radius_m` from the ego are not drawn.
+"""
+
+from __future__ import annotations
+
+import logging
+import pkgutil
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.hdmap import IntersectionMap
+from drivee2e_data.scenario import Scenario, SignalState
+from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
+from drivee2e_data.sim.twin import Twin, build_twin
+
+LOG = logging.getLogger(__name__)
+HIDDEN_Z_M = -100.0  # actors not drawn wait here, under the ground
+RENDERERS = ("auto", "egl", "tiny")
+_logged_choice: set[str] = set()
+
+
+@dataclass(frozen=True)
+class Image:
+    rgb: NDArray[np.uint8]  # (H, W, 3)
+    depth_m: NDArray[np.float32]  # (H, W) metric depth along the optical axis
+    segmentation: NDArray[np.int32] | None  # (H, W) body id per pixel, -1 for background
+
+
+def connect(renderer: str = "auto") -> tuple[int, str]:
+    """A new DIRECT pybullet client and the renderer it will use ('egl' or 'tiny')."""
+    import pybullet
+
+    if renderer not in RENDERERS:
+        raise DriveE2EError(f"renderer {renderer!r}: expected one of {', '.join(RENDERERS)}")
+    client = pybullet.connect(pybullet.DIRECT)
+    chosen = "tiny"
+    if renderer in ("auto", "egl"):
+        loader = pkgutil.get_loader("eglRenderer")
+        plugin = -1
+        if loader is not None:
+            plugin = pybullet.loadPlugin(
+                loader.get_filename(), "_eglRendererPlugin", physicsClientId=client
+            )
+        if plugin >= 0:
+            chosen = "egl"
+        elif renderer == "egl":
+            pybullet.disconnect(client)
+            raise DriveE2EError("renderer 'egl': pybullet's eglRenderer plugin did not load here")
+    if chosen not in _logged_choice:
+        LOG.info(
+            "pybullet renderer: %s",
+            "EGL (hardware OpenGL)" if chosen == "egl" else "TinyRenderer (CPU)",
+        )
+        _logged_choice.add(chosen)
+    return client, chosen
+
+
+class World:
+    """The twin of `intersection_map` with `scenario`'s agents, in one pybullet client."""
+
+    def __init__(
+        self,
+        intersection_map: IntersectionMap,
+        scenario: Scenario,
+        renderer: str = "auto",
+        draw_radius_m: float = 120.0,
+    ) -> None:
+        import pybullet
+
+        self.p = pybullet
+        self.client, self.renderer = connect(renderer)
+        self.scenario, self.draw_radius_m = scenario, draw_radius_m
+        self.twin: Twin = build_twin(intersection_map, self.client)
+        self.blueprints: dict[str, Blueprint] = {
+            t.track_id: choose_blueprint(t) for t in scenario.tracks
+        }
+        self.bodies = {
+            track_id: create_actor(self.client, bp) for track_id, bp in self.blueprints.items()
+        }
+        self.ego_xy = np.zeros(2)
+        self.ego_id: str | None = None
+        self.frame = -1
+
+    def close(self) -> None:
+        self.p.disconnect(self.client)
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def place_ego(self, x_m: float, y_m: float, ego_id: str | None = None) -> None:
+        """Where the ego is: actors farther than the draw radius from here are hidden, and so is
+        the ego's own logged actor (`ego_id`), which the cameras sit inside."""
+        self.ego_xy = np.array([x_m, y_m])
+        self.ego_id = ego_id
+
+    def set_time(self, frame: int) -> None:
+        """Every agent at its logged pose of `frame` (blueprint box centred on the logged box's
+        ground point) and every signal at its logged state; agents invalid then are hidden."""
+        for track in self.scenario.tracks:
+            body = self.bodies[track.track_id]
+            visible = (
+                track.track_id != self.ego_id
+                and bool(track.valid[frame])
+                and (
+                    np.hypot(track.x_m[frame] - self.ego_xy[0], track.y_m[frame] - self.ego_xy[1])
+                    <= self.draw_radius_m
+                )
+            )
+            if visible:
+                ground = track.z_m[frame] - 0.5 * track.height_m[frame]
+                z = ground + 0.5 * self.blueprints[track.track_id].size_m[2]
+                orientation = self.p.getQuaternionFromEuler([0.0, 0.0, float(track.yaw_rad[frame])])
+                position = [float(track.x_m[frame]), float(track.y_m[frame]), float(z)]
+            else:
+                orientation, position = [0, 0, 0, 1], [0.0, 0.0, HIDDEN_Z_M]
+            self.p.resetBasePositionAndOrientation(
+                body, position, orientation, physicsClientId=self.client
+            )
+        states = {s.signal_id: SignalState(int(s.states[frame])) for s in self.scenario.signals}
+        self.twin.show(states)
+        self.frame = frame
+
+    def actor_pose(self, track_id: str) -> tuple[NDArray[np.float64], float]:
+        """(x, y, z) and yaw of a drawn actor."""
+        position, orientation = self.p.getBasePositionAndOrientation(
+            self.bodies[track_id], physicsClientId=self.client
+        )
+        return np.asarray(position), float(self.p.getEulerFromQuaternion(orientation)[2])
+
+    def render(
+        self,
+        eye_m: NDArray[np.float64],
+        target_m: NDArray[np.float64],
+        width: int,
+        height: int,
+        vertical_fov_deg: float,
+        far_m: float = 200.0,
+        segmentation: bool = False,
+    ) -> Image:
+        """An image from a pinhole camera at `eye_m` looking at `target_m` (z up)."""
+        near = 0.1
+        view = self.p.computeViewMatrix(
+            list(eye_m), list(target_m), [0, 0, 1], physicsClientId=self.client
+        )
+        projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height, near, far_m,
+                                                       physicsClientId=self.client)  # fmt: skip
+        flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
+        renderer = (
+            self.p.ER_BULLET_HARDWARE_OPENGL if self.renderer == "egl" else self.p.ER_TINY_RENDERER
+        )
+        _, _, rgba, depth, seg = self.p.getCameraImage(
+            width,
+            height,
+            view,
+            projection,
+            renderer=renderer,
+            flags=flags,
+            physicsClientId=self.client,
+        )
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        buffer = np.asarray(depth, dtype=np.float32).reshape(height, width)
+        depth_m = (far_m * near / (far_m - (far_m - near) * buffer)).astype(np.float32)
+        mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
+        return Image(rgb, depth_m, mask)

@@ -1,0 +1,161 @@
+"""The pybullet twin and replay: known answers on a small synthetic scene."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivee2e_data import datasets, store
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.scenario import SignalState
+from drivee2e_data.sim import twin as twin_module
+from drivee2e_data.sim.world import World, connect
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory):
+    root = tmp_path_factory.mktemp("sim")
+    datasets.synthesize(root, clips=1, seed=3)
+    scenario = store.read_scenario(root, store.scenario_ids(root)[0])
+    return store.read_map(root, scenario.map_id), scenario
+
+
+@pytest.fixture(scope="module")
+def world(clip):
+    intersection_map, scenario = clip
+    with World(intersection_map, scenario, renderer="tiny", draw_radius_m=1e6) as replay:
+        yield replay
+
+
+def test_actor_appears_at_its_logged_pose_to_1mm(world, clip):
+    _, scenario = clip
+    frame = scenario.num_frames // 2
+    world.set_time(frame)
+    checked = 0
+    for track in scenario.tracks:
+        if not track.valid[frame]:
+            continue
+        position, yaw = world.actor_pose(track.track_id)
+        assert np.hypot(position[0] - track.x_m[frame], position[1] - track.y_m[frame]) < 1e-3
+        assert abs(np.angle(np.exp(1j * (yaw - track.yaw_rad[frame])))) < 1e-3
+        checked += 1
+    assert checked > 10
+
+
+def test_invalid_agents_are_hidden(world, clip):
+    _, scenario = clip
+    track = next(t for t in scenario.tracks if not t.valid.all())
+    frame = int(np.flatnonzero(~track.valid)[0])
+    world.set_time(frame)
+    assert world.actor_pose(track.track_id)[0][2] < -50
+
+
+def _look_at_head(world, intersection_map, signal_id):
+    head = next(h for h in intersection_map.signal_heads if h.signal_id == signal_id)
+    facing = np.array([np.cos(head.facing_yaw_rad), np.sin(head.facing_yaw_rad), 0.0])
+    target = head.position_m + np.array([0.0, 0.0, 0.5])
+    return world.render(target + 4.0 * facing, target, 96, 96, 30.0).rgb
+
+
+@pytest.mark.parametrize("state", [SignalState.RED, SignalState.GREEN])
+def test_a_signal_logged_in_a_state_shows_that_colour(world, clip, state):
+    intersection_map, scenario = clip
+    signal = next(
+        s for s in scenario.signals if s.signal_id.startswith("sig_") and (s.states == state).any()
+    )
+    world.set_time(int(np.flatnonzero(signal.states == state)[0]))
+    rgb = _look_at_head(world, intersection_map, signal.signal_id).astype(int)
+    red = (rgb[:, :, 0] > 180) & (rgb[:, :, 1] < 80)
+    green = (rgb[:, :, 1] > 180) & (rgb[:, :, 0] < 80)
+    lit, dark = (red, green) if state == SignalState.RED else (green, red)
+    assert lit.sum() > 20 and dark.sum() == 0
+
+
+def test_same_frame_renders_identical_pixels(world, clip):
+    _, scenario = clip
+    ego = scenario.ego
+    world.place_ego(ego.x_m[10], ego.y_m[10], ego.track_id)
+    world.set_time(10)
+    eye = np.array([ego.x_m[10], ego.y_m[10], 1.6])
+    target = eye + 10 * np.array([np.cos(ego.yaw_rad[10]), np.sin(ego.yaw_rad[10]), 0.0])
+    first = world.render(eye, target, 160, 90, 40.0)
+    world.set_time(40)
+    world.set_time(10)
+    second = world.render(eye, target, 160, 90, 40.0)
+    assert np.array_equal(first.rgb, second.rgb) and np.array_equal(first.depth_m, second.depth_m)
+    assert first.rgb.std() > 10  # a scene, not a blank frame
+
+
+def test_depth_is_metric(world):
+    world.set_time(0)
+    image = world.render(np.array([0.0, 0.0, 30.0]), np.array([0.0, 0.001, 0.0]), 64, 64, 10.0)
+    centre = image.depth_m[32, 32]
+    assert 29.9 < centre < 30.1  # the road surface straight below the camera
+
+
+def test_unknown_renderer_is_a_clear_error():
+    with pytest.raises(DriveE2EError, match="renderer 'vulkan'"):
+        connect("vulkan")
+
+
+def test_auto_renderer_falls_back_cleanly():
+    import pybullet
+
+    client, chosen = connect("auto")
+    assert chosen in ("egl", "tiny")
+    pybullet.disconnect(client)
+
+
+def test_concave_polygon_triangulates_exactly():
+    import shapely
+
+    l_shape = shapely.Polygon([(0, 0), (4, 0), (4, 1), (1, 1), (1, 3), (0, 3)])
+    vertices, indices = twin_module.triangulate(l_shape)
+    area = sum(
+        abs(twin_module._signed_area(vertices[indices[k : k + 3]]))
+        for k in range(0, len(indices), 3)
+    )
+    assert area == pytest.approx(l_shape.area)
+
+
+def test_world_builds_on_real_map(tmp_path: Path):
+    from conftest import REALDATA
+
+    if not REALDATA.is_dir():
+        pytest.skip("../shared/realdata is absent")
+    from drivee2e_data.sources import commonroad
+
+    imported = commonroad.import_commonroad(REALDATA / "commonroad" / "USA_Peach-4_8_T-1.xml")
+    with World(imported.intersection_map, imported.scenario, renderer="tiny") as replay:
+        replay.set_time(0)
+        assert len(replay.twin.lamps) == 4
+
+
+def test_view_cli_writes_a_contact_sheet(tmp_path: Path, capsys):
+    import cv2
+
+    from drivee2e_data.cli import main
+
+    datasets.synthesize(tmp_path, clips=1, seed=3)
+    scenario_id = store.scenario_ids(tmp_path)[0]
+    out = tmp_path / "sheet.png"
+    assert (
+        main(
+            [
+                "view",
+                str(tmp_path),
+                scenario_id,
+                "--frame",
+                "5",
+                "--out",
+                str(out),
+                "--renderer",
+                "tiny",
+            ]
+        )
+        == 0
+    )
+    sheet = cv2.imread(str(out))
+    assert sheet.shape == (540, 3 * 480 + 540, 3) and sheet.std() > 20
+    assert main(["view", str(tmp_path), scenario_id, "--frame", "99999", "--out", str(out)]) == 2
+    assert "frame 99999 is outside" in capsys.readouterr().err
