@@ -8,7 +8,10 @@ signals a pole with one head whose three lamps `Twin.show` lights by state.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import shapely
@@ -46,6 +49,11 @@ class Twin:
     bodies: list[int] = field(default_factory=list)
     lamps: dict[str, list[tuple[int, SignalState]]] = field(default_factory=dict)
     segmentation: dict[int, str] = field(default_factory=dict)  # body id -> element kind
+    mesh_dir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="drivee2e_twin_")))
+
+    def remove_files(self) -> None:
+        """Delete the mesh files written for this twin (call after disconnecting)."""
+        shutil.rmtree(self.mesh_dir, ignore_errors=True)
 
     def show(self, states: dict[str, SignalState]) -> None:
         """Light each signal's lamp for its state (all dark for unknown or off)."""
@@ -89,15 +97,23 @@ class TwinBuilder:
         self.p, self.client = pybullet, client
         self.twin = Twin(client)
 
+    def _mesh(self, vertices: NDArray, indices: NDArray, rgba: tuple) -> int:
+        """A mesh visual shape, through an OBJ file: pybullet's EGL renderer cannot take meshes
+        given as vertex lists (it crashes), and both renderers read OBJ files."""
+        path = self.twin.mesh_dir / f"mesh_{len(self.twin.bodies):05d}.obj"
+        lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(indices).reshape(-1, 3)]
+        path.write_text("\n".join(lines) + "\n")
+        return self.p.createVisualShape(
+            self.p.GEOM_MESH, fileName=str(path), rgbaColor=rgba, physicsClientId=self.client
+        )
+
     def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str) -> None:
         vertices, indices = triangulate(geometry)
         if len(indices) == 0:
             return
         vertices_3d = np.column_stack([vertices, np.full(len(vertices), z_m)])
-        shape = self.p.createVisualShape(
-            self.p.GEOM_MESH, vertices=vertices_3d.tolist(), indices=indices.tolist(),
-            rgbaColor=rgba, physicsClientId=self.client,
-        )  # fmt: skip
+        shape = self._mesh(vertices_3d, indices, rgba)
         body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind
@@ -119,13 +135,7 @@ class TwinBuilder:
         base = len(vertices)
         vertices += [[x, y, top_m] for x, y in roof]
         indices += (roof_indices + base).tolist()
-        shape = self.p.createVisualShape(
-            self.p.GEOM_MESH,
-            vertices=vertices,
-            indices=indices,
-            rgbaColor=rgba,
-            physicsClientId=self.client,
-        )
+        shape = self._mesh(np.asarray(vertices), np.asarray(indices), rgba)
         body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind

@@ -92,6 +92,7 @@ class World:
 
     def close(self) -> None:
         self.p.disconnect(self.client)
+        self.twin.remove_files()
 
     def __enter__(self) -> World:
         return self
