@@ -12,7 +12,7 @@ from tqdm import tqdm
 from drivee2e_data import __version__, datasets, figures
 from drivee2e_data.datasets import write_view
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.scenario import AgentClass
+from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 
 CLASS_ABBREVIATION = {
     AgentClass.CAR: "car",
@@ -69,6 +69,12 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--frame", type=int, default=0)
     view.add_argument("--out", type=Path, required=True, help="PNG to write")
     view.add_argument("--renderer", choices=("auto", "egl", "tiny"), default="auto")
+    view.add_argument(
+        "--weather", choices=[w.value for w in Weather], help="view under another weather"
+    )
+    view.add_argument(
+        "--time-of-day", choices=[t.value for t in TimeOfDay], help="...or another time"
+    )
 
     curate = commands.add_parser("curate", help="score tracks, choose egos, label behaviours")
     curate.add_argument("data", type=Path, help="data root")
@@ -118,7 +124,15 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _view(args: argparse.Namespace) -> int:
-    write_view(args.data, args.scenario_id, args.frame, args.out, args.renderer)
+    write_view(
+        args.data,
+        args.scenario_id,
+        args.frame,
+        args.out,
+        args.renderer,
+        args.weather,
+        args.time_of_day,
+    )
     print(f"wrote {args.out}")
     return 0
 

@@ -159,3 +159,45 @@ def test_view_cli_writes_a_contact_sheet(tmp_path: Path, capsys):
     assert sheet.shape == (540, 3 * 480 + 540, 3) and sheet.std() > 20
     assert main(["view", str(tmp_path), scenario_id, "--frame", "99999", "--out", str(out)]) == 2
     assert "frame 99999 is outside" in capsys.readouterr().err
+
+
+def test_sun_position_known_answers():
+    from datetime import datetime, timezone
+
+    from drivee2e_data.hdmap import GeoOrigin
+    from drivee2e_data.sim.conditions import sun_position
+
+    beijing = GeoOrigin(39.9, 116.4)
+    azimuth, elevation = sun_position(datetime(2026, 6, 21, 4, 16, tzinfo=timezone.utc), beijing)
+    assert np.rad2deg(elevation) == pytest.approx(
+        90 - 39.9 + 23.44, abs=1.5
+    )  # local solar noon (116.4 E: 04:16 UTC)
+    assert np.rad2deg(azimuth) == pytest.approx(180.0, abs=5.0)  # due south
+    assert (
+        sun_position(datetime(2026, 6, 21, 16, 0, tzinfo=timezone.utc), beijing)[1] < 0
+    )  # midnight
+    morning_azimuth = sun_position(datetime(2026, 3, 20, 0, 30, tzinfo=timezone.utc), beijing)[0]
+    assert 60 < np.rad2deg(morning_azimuth) < 120  # the sun rises in the east
+
+
+def test_weather_and_night_post_processing():
+    from datetime import datetime, timezone
+
+    from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
+    from drivee2e_data.sim.conditions import Lighting, post_process
+
+    rgb = np.full((40, 40, 3), 60, np.uint8)
+    depth = np.tile(np.linspace(2.0, 300.0, 40, dtype=np.float32)[:, None], (1, 40))
+    day = Lighting((0, 0, 1), (1, 1, 1), 0.5, 0.5, False)
+    night = Lighting((0, 0, 1), (1, 1, 1), 0.5, 0.5, True)
+    when = datetime(2026, 5, 1, tzinfo=timezone.utc)
+    fog = post_process(rgb, depth, Conditions(Weather.FOG, TimeOfDay.NOON, when), day, seed=1)
+    assert fog[0].mean() < 80 and fog[-1].mean() > 190  # near stays dark, far goes to fog
+    dark = post_process(rgb, depth, Conditions(Weather.CLEAR, TimeOfDay.NIGHT, when), night, seed=1)
+    assert dark.mean() < 25
+    again = post_process(
+        rgb, depth, Conditions(Weather.CLEAR, TimeOfDay.NIGHT, when), night, seed=1
+    )
+    assert np.array_equal(dark, again)
+    rain = post_process(rgb, depth, Conditions(Weather.RAIN, TimeOfDay.NOON, when), day, seed=2)
+    assert rain.max() > 100  # streaks

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
 
 # name, yaw offset from the ego's heading (deg), horizontal field of view (deg): nuScenes-like
@@ -22,8 +25,9 @@ TOP_VIEW_HALF_WIDTH_M = 60.0
 
 
 def surround(
-    world: World, ego_xy_m: NDArray, ego_yaw_rad: float
+    world: World, ego_xy_m: NDArray, ego_yaw_rad: float, frame: int = 0
 ) -> list[tuple[str, NDArray[np.uint8]]]:
+    """The six views with the clip's weather and light applied."""
     width, height = TILE
     views = []
     for name, offset_deg, horizontal_fov in SURROUND_VIEWS:
@@ -33,7 +37,11 @@ def surround(
         vertical = np.rad2deg(
             2 * np.arctan(np.tan(np.deg2rad(horizontal_fov) / 2) * height / width)
         )
-        views.append((name, world.render(eye, target, width, height, float(vertical)).rgb))
+        image = world.render(eye, target, width, height, float(vertical))
+        seed = zlib.crc32(f"{world.scenario.scenario_id}/{frame}/{name}".encode())
+        rgb = post_process(image.rgb, image.depth_m, world.scenario.conditions, world.lighting, seed,
+                           headlights=name == "CAM_FRONT")  # fmt: skip
+        views.append((name, rgb))
     return views
 
 
@@ -54,7 +62,7 @@ def contact_sheet(world: World, frame: int) -> NDArray[np.uint8]:
     xy = ego.xy_m[frame]
     world.place_ego(float(xy[0]), float(xy[1]), ego.track_id)
     world.set_time(frame)
-    tiles = surround(world, xy, float(ego.yaw_rad[frame]))
+    tiles = surround(world, xy, float(ego.yaw_rad[frame]), frame)
     world.place_ego(float(xy[0]), float(xy[1]), None)  # the top view shows the ego too
     world.set_time(frame)
     width, height = TILE

@@ -23,6 +23,7 @@ from drivee2e_data.scenario import SignalState
 
 PAINT_Z_M = 0.005  # markings sit this far above the road
 ROAD_RGBA = (0.28, 0.28, 0.3, 1.0)
+CROSSWALK_RGBA = (0.36, 0.36, 0.38, 1.0)
 SIDEWALK_RGBA = (0.62, 0.6, 0.56, 1.0)
 WHITE_RGBA = (0.92, 0.92, 0.9, 1.0)
 YELLOW_RGBA = (0.95, 0.75, 0.1, 1.0)
@@ -140,34 +141,13 @@ class TwinBuilder:
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind
 
-    def _line_paint(self, line: NDArray, mark: LaneMark, kind: str) -> None:
-        if mark.pattern == MarkPattern.NONE:
-            return
-        rgba = YELLOW_RGBA if mark.colour == MarkColour.YELLOW else WHITE_RGBA
-        geometry = shapely.LineString(line[:, :2])
-        offsets = [0.0]
-        if mark.pattern in (MarkPattern.DOUBLE_SOLID, MarkPattern.DOUBLE_DASHED,
-                            MarkPattern.SOLID_DASHED, MarkPattern.DASHED_SOLID):  # fmt: skip
-            offsets = [-0.15, 0.15]
-        pieces = []
-        for index, offset in enumerate(offsets):
-            side = geometry.offset_curve(offset) if offset else geometry
-            dashed = (
-                mark.pattern in (MarkPattern.DASHED, MarkPattern.DOUBLE_DASHED)
-                or (mark.pattern == MarkPattern.SOLID_DASHED and index == 1)
-                or (mark.pattern == MarkPattern.DASHED_SOLID and index == 0)
-            )
-            if dashed:
-                for start in np.arange(0.0, side.length, DASH_M + GAP_M):
-                    pieces.append(
-                        shapely.ops.substring(side, start, min(start + DASH_M, side.length))
-                    )
-            else:
-                pieces.append(side)
-        paint = shapely.union_all(
-            [piece.buffer(0.5 * LINE_WIDTH_M, cap_style="flat") for piece in pieces]
-        )
-        self._flat(paint, PAINT_Z_M, rgba, kind)
+    def _line_paint(self, line: NDArray, mark: LaneMark, road: shapely.Geometry) -> None:
+        """Paint a boundary's mark, on the road only (an edge line's outer half would be under
+        the kerb)."""
+        paint = paint_geometry(line, mark).intersection(road)
+        if not paint.is_empty:
+            rgba = YELLOW_RGBA if mark.colour == MarkColour.YELLOW else WHITE_RGBA
+            self._flat(paint, PAINT_Z_M, rgba, "road_mark")
 
     def build(self, intersection_map: IntersectionMap) -> Twin:
         m = intersection_map
@@ -180,15 +160,15 @@ class TwinBuilder:
             self._prism(area.polygon_m, -0.05, area.kerb_height_m, SIDEWALK_RGBA, "sidewalk")
         for lane in m.lanes:
             if not lane.is_intersection:
-                self._line_paint(lane.left_boundary_m, lane.left_mark, "road_mark")
-                self._line_paint(lane.right_boundary_m, lane.right_mark, "road_mark")
+                self._line_paint(lane.left_boundary_m, lane.left_mark, road)
+                self._line_paint(lane.right_boundary_m, lane.right_mark, road)
         for crosswalk in m.crosswalks:
+            self._flat(
+                shapely.Polygon(crosswalk.polygon_m), 0.5 * PAINT_Z_M, CROSSWALK_RGBA, "crosswalk"
+            )
             self._flat(_zebra(crosswalk.polygon_m), PAINT_Z_M, WHITE_RGBA, "crosswalk")
         for stop_line in m.stop_lines:
-            band = shapely.LineString(stop_line.line_m[:, :2]).buffer(
-                0.5 * STOP_LINE_WIDTH_M, cap_style="flat"
-            )
-            self._flat(band, 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
+            self._flat(stop_line_band(stop_line.line_m), 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
         for building in m.buildings:
             self._prism(building.footprint_m, 0.0, building.height_m, BUILDING_RGBA, "building")
         for tree in m.trees:
@@ -259,6 +239,41 @@ class TwinBuilder:
             self.twin.segmentation[body] = "signal"
             lamps.append((body, colour))
         self.twin.lamps.setdefault(signal_id, []).extend(lamps)
+
+
+def paint_geometry(line: NDArray, mark: LaneMark) -> shapely.Geometry:
+    """The painted area of a boundary line with mark `mark` (dashes 3 m on, 6 m off; doubles
+    0.3 m apart; lines 0.15 m wide)."""
+    if mark.pattern == MarkPattern.NONE:
+        return shapely.Polygon()
+    geometry = shapely.LineString(line[:, :2])
+    double = (
+        MarkPattern.DOUBLE_SOLID,
+        MarkPattern.DOUBLE_DASHED,
+        MarkPattern.SOLID_DASHED,
+        MarkPattern.DASHED_SOLID,
+    )
+    offsets = [-0.15, 0.15] if mark.pattern in double else [0.0]
+    pieces = []
+    for index, offset in enumerate(offsets):
+        side = geometry.offset_curve(offset) if offset else geometry
+        dashed = (
+            mark.pattern in (MarkPattern.DASHED, MarkPattern.DOUBLE_DASHED)
+            or (mark.pattern == MarkPattern.SOLID_DASHED and index == 1)
+            or (mark.pattern == MarkPattern.DASHED_SOLID and index == 0)
+        )
+        if dashed:
+            for start in np.arange(0.0, side.length, DASH_M + GAP_M):
+                pieces.append(shapely.ops.substring(side, start, min(start + DASH_M, side.length)))
+        else:
+            pieces.append(side)
+    return shapely.union_all(
+        [piece.buffer(0.5 * LINE_WIDTH_M, cap_style="flat") for piece in pieces]
+    )
+
+
+def stop_line_band(line_m: NDArray) -> shapely.Geometry:
+    return shapely.LineString(line_m[:, :2]).buffer(0.5 * STOP_LINE_WIDTH_M, cap_style="flat")
 
 
 def _zebra(polygon_m: NDArray) -> shapely.Geometry:

@@ -20,6 +20,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import Scenario, SignalState
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
+from drivee2e_data.sim.conditions import lighting
 from drivee2e_data.sim.twin import Twin, build_twin
 
 LOG = logging.getLogger(__name__)
@@ -86,6 +87,7 @@ class World:
         self.bodies = {
             track_id: create_actor(self.client, bp) for track_id, bp in self.blueprints.items()
         }
+        self.lighting = lighting(scenario.conditions, intersection_map.origin)
         self.ego_xy = np.zeros(2)
         self.ego_id: str | None = None
         self.frame = -1

@@ -1,0 +1,136 @@
+"""Light and weather: the sun's direction from the clip's UTC time and the map's WGS84 origin,
+light colour and ambient per weather and time of day, and post-processing of a rendered image
+with its depth buffer (fog, rain streaks and wet-road darkening, low light with noise and
+headlight falloff at night). Deterministic: noise and streaks come from a seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.hdmap import GeoOrigin
+from drivee2e_data.scenario import Conditions, Weather
+
+# metres of visibility (distance at which contrast falls to 5%); None: clear air
+VISIBILITY_M = {Weather.FOG: 70.0, Weather.RAIN: 400.0, Weather.OVERCAST: 3000.0, Weather.CLOUDY: None,
+                Weather.CLEAR: None, Weather.WET: None}  # fmt: skip
+FOG_RGB = np.array([200.0, 202.0, 205.0])
+NIGHT_GAIN = 0.22  # scene brightness at night before artificial light
+NIGHT_NOISE_SIGMA = 6.0  # sensor noise (8-bit levels) in low light
+HEADLIGHT_REACH_M = 35.0
+WET_DARKENING = 0.82  # road and ground pixels darken this much when wet or raining
+RAIN_STREAKS = 180
+
+
+@dataclass(frozen=True)
+class Lighting:
+    direction: tuple[float, float, float]  # unit vector towards the light, world frame (ENU)
+    colour: tuple[float, float, float]
+    ambient: float
+    diffuse: float
+    night: bool
+
+
+def sun_position(time_utc: datetime, origin: GeoOrigin) -> tuple[float, float]:
+    """(azimuth clockwise from north, elevation) of the sun in radians, by the usual
+    declination / equation-of-time approximation (about a degree of error)."""
+    day = time_utc.timetuple().tm_yday
+    hours = time_utc.hour + time_utc.minute / 60 + time_utc.second / 3600
+    gamma = 2 * math.pi / 365 * (day - 1 + (hours - 12) / 24)
+    equation_of_time_min = 229.18 * (0.000075 + 0.001868 * math.cos(gamma) - 0.032077 * math.sin(gamma)
+                                     - 0.014615 * math.cos(2 * gamma) - 0.040849 * math.sin(2 * gamma))  # fmt: skip
+    declination = (0.006918 - 0.399912 * math.cos(gamma) + 0.070257 * math.sin(gamma)
+                   - 0.006758 * math.cos(2 * gamma) + 0.000907 * math.sin(2 * gamma))  # fmt: skip
+    solar_minutes = hours * 60 + equation_of_time_min + 4 * origin.longitude_deg
+    hour_angle = math.radians(solar_minutes / 4 - 180)
+    latitude = math.radians(origin.latitude_deg)
+    cos_zenith = math.sin(latitude) * math.sin(declination) + math.cos(latitude) * math.cos(
+        declination
+    ) * math.cos(hour_angle)
+    zenith = math.acos(max(-1.0, min(1.0, cos_zenith)))
+    azimuth = (
+        math.atan2(
+            math.sin(hour_angle),
+            math.cos(hour_angle) * math.sin(latitude) - math.tan(declination) * math.cos(latitude),
+        )
+        + math.pi
+    )
+    return azimuth % (2 * math.pi), math.pi / 2 - zenith
+
+
+def lighting(conditions: Conditions, origin: GeoOrigin) -> Lighting:
+    azimuth, elevation = sun_position(conditions.start_time_utc, origin)
+    night = elevation < math.radians(-4)
+    if night:  # street lights from above
+        direction = (0.0, 0.0, 1.0)
+        return Lighting(direction, (1.0, 0.85, 0.6), 0.5, 0.4, True)
+    lift = max(elevation, math.radians(5))
+    direction = (
+        math.sin(azimuth) * math.cos(lift),
+        math.cos(azimuth) * math.cos(lift),
+        math.sin(lift),
+    )
+    low_sun = elevation < math.radians(15)
+    colour = (1.0, 0.78, 0.55) if low_sun else (1.0, 0.98, 0.94)
+    overcast = conditions.weather in (Weather.OVERCAST, Weather.RAIN, Weather.FOG)
+    return Lighting(direction, colour, 0.75 if overcast else 0.55, 0.3 if overcast else 0.6, False)
+
+
+def post_process(
+    rgb: NDArray[np.uint8],
+    depth_m: NDArray[np.float32],
+    conditions: Conditions,
+    light: Lighting,
+    seed: int,
+    headlights: bool = False,
+) -> NDArray[np.uint8]:
+    """The weather and light of `conditions` applied to an image with its metric depth."""
+    image = rgb.astype(np.float32)
+    rng = np.random.default_rng(seed)
+    if conditions.weather in (Weather.RAIN, Weather.WET):
+        below = _below_horizon(depth_m)
+        image[below] *= WET_DARKENING
+    visibility = VISIBILITY_M[conditions.weather]
+    if visibility is not None:
+        transmission = np.exp(-3.0 * np.minimum(depth_m, 1e4) / visibility)[..., None]
+        fog = FOG_RGB * (NIGHT_GAIN if light.night else 1.0)
+        image = image * transmission + fog * (1 - transmission)
+    if light.night:
+        image *= NIGHT_GAIN
+        if headlights:
+            height, width = depth_m.shape
+            columns = np.abs(np.arange(width) - width / 2) / (width / 2)
+            cone = np.clip(1.0 - columns, 0.0, 1.0)[None, :] * (
+                np.arange(height)[:, None] > height * 0.45
+            )
+            falloff = np.clip(1.0 - depth_m / HEADLIGHT_REACH_M, 0.0, 1.0) * cone
+            image *= 1.0 + 3.0 * falloff[..., None]
+        image += rng.normal(0.0, NIGHT_NOISE_SIGMA, image.shape)
+    if conditions.weather == Weather.RAIN:
+        image = _rain(image, rng)
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def _below_horizon(depth_m: NDArray[np.float32]) -> NDArray[np.bool_]:
+    """Pixels of surfaces (finite depth) in the lower half of the image: road and ground, mostly."""
+    height = depth_m.shape[0]
+    lower = np.zeros(depth_m.shape, bool)
+    lower[height // 2 :] = True
+    return lower & (depth_m < 150.0)
+
+
+def _rain(image: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.float32]:
+    import cv2
+
+    streaks = np.zeros(image.shape[:2], np.float32)
+    height, width = streaks.shape
+    for _ in range(RAIN_STREAKS):
+        x, y = int(rng.integers(width)), int(rng.integers(height))
+        length = int(rng.integers(height // 30, height // 10))
+        cv2.line(streaks, (x, y), (x + length // 6, y + length), 1.0, 1, cv2.LINE_AA)
+    return image * (1 - 0.35 * streaks[..., None]) + 220.0 * 0.35 * streaks[..., None]
