@@ -149,6 +149,18 @@ def _velocity(x: NDArray, y: NDArray, valid: NDArray) -> tuple[NDArray, NDArray]
     return vx, vy
 
 
+def heading_from_velocity(velocity: np.ndarray) -> np.ndarray:
+    """Heading from velocity, held through near-standstill (below 0.2 m/s)."""
+    heading = np.arctan2(velocity[:, 1], velocity[:, 0])
+    moving = np.hypot(velocity[:, 0], velocity[:, 1]) > 0.2
+    last = heading[np.argmax(moving)] if moving.any() else 0.0
+    for k in range(len(heading)):
+        if moving[k]:
+            last = heading[k]
+        heading[k] = last
+    return heading
+
+
 def grid_between(first_ns: int, last_ns: int) -> NDArray[np.int64]:
     """10 Hz times from `first_ns` up to `last_ns`."""
     count = (last_ns - first_ns) // FRAME_PERIOD_NS + 1

@@ -19,6 +19,7 @@ from drivee2e_data.sources.common import (
     TYPICAL_SIZE_M,
     ImportReport,
     grid_between,
+    heading_from_velocity,
     number,
     read_csv_rows,
     resample_track,
@@ -81,7 +82,7 @@ def import_interaction(track_csvs: list[Path], osm_map: Path) -> Imported:
         elif kind in ("pedestrian/bicycle", "pedestrian", "bicycle"):
             fast = np.hypot(velocity[:, 0], velocity[:, 1]).max() > WALKING_LIMIT_MPS
             agent_class = AgentClass.CYCLIST if fast or kind == "bicycle" else AgentClass.PEDESTRIAN
-            yaw = np.arctan2(velocity[:, 1], velocity[:, 0])
+            yaw = heading_from_velocity(velocity)
             size = np.tile(TYPICAL_SIZE_M[agent_class], (len(rows), 1))
             note = "class default (the file has no size)"
         else:

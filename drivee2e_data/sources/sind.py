@@ -34,6 +34,7 @@ from drivee2e_data.sources.common import (
     ImportReport,
     cut_clips,
     grid_between,
+    heading_from_velocity,
     number,
     read_csv_rows,
     resample_track,
@@ -176,7 +177,7 @@ def _tracks(
                     for i, r in entries
                 ]
             )[order]
-            yaw = _heading_from_velocity(velocity)
+            yaw = heading_from_velocity(velocity)
             size = np.tile(TYPICAL_SIZE_M[agent_class], (len(entries), 1))
         t_ns = np.round((t_ms[order] - start_ms) * 1e6).astype(np.int64) + int(grid_ns[0])
         track = resample_track(
@@ -194,18 +195,6 @@ def _tracks(
             tracks.append(track)
             report.keep(kind, agent_class)
     return tracks
-
-
-def _heading_from_velocity(velocity: np.ndarray) -> np.ndarray:
-    """Heading from velocity, held through near-standstill (below 0.2 m/s)."""
-    heading = np.arctan2(velocity[:, 1], velocity[:, 0])
-    moving = np.hypot(velocity[:, 0], velocity[:, 1]) > 0.2
-    last = heading[np.argmax(moving)] if moving.any() else 0.0
-    for k in range(len(heading)):
-        if moving[k]:
-            last = heading[k]
-        heading[k] = last
-    return heading
 
 
 def _conditions(folder: Path, report: ImportReport) -> tuple[Conditions, str]:
