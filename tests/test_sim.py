@@ -201,3 +201,19 @@ def test_weather_and_night_post_processing():
     assert np.array_equal(dark, again)
     rain = post_process(rgb, depth, Conditions(Weather.RAIN, TimeOfDay.NOON, when), day, seed=2)
     assert rain.max() > 100  # streaks
+
+
+def test_generated_buildings_keep_off_the_road_and_repeat():
+    import shapely
+    from factories import small_map
+
+    from drivee2e_data.hdmap import StopLine
+    from drivee2e_data.sim.twin import BUILDING_SETBACK_M, generated_buildings
+
+    bare = small_map(stop_lines=(StopLine("s", np.array([[50.0, 1.75], [50.0, -1.75]]), ("l1",)),))
+    first, second = generated_buildings(bare), generated_buildings(bare)
+    assert first and all(b.generated for b in first)
+    assert [b.footprint_m.tolist() for b in first] == [b.footprint_m.tolist() for b in second]
+    road = bare.drivable_union()
+    for building in first:
+        assert shapely.Polygon(building.footprint_m).distance(road) >= BUILDING_SETBACK_M - 1e-6

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import shapely
 import shapely.ops
 from numpy.typing import NDArray
 
-from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
+from drivee2e_data.hdmap import Building, IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
 
 PAINT_Z_M = 0.005  # markings sit this far above the road
@@ -40,6 +41,9 @@ LINE_WIDTH_M = 0.15
 STOP_LINE_WIDTH_M = 0.4
 DASH_M, GAP_M = 3.0, 6.0
 ZEBRA_STRIPE_M = 0.5
+BUILDING_SETBACK_M = 3.0  # generated buildings keep this far from road, crosswalks and sidewalks
+BUILDING_REACH_M = 90.0  # ...and stand within this distance of the junction
+BUILDING_GRID_M = 22.0  # one candidate building per grid cell
 
 
 @dataclass
@@ -153,7 +157,7 @@ class TwinBuilder:
         m = intersection_map
         road = m.drivable_union()
         self._flat(
-            road.envelope.buffer(GROUND_MARGIN_M, join_style="mitre"), -0.03, GROUND_RGBA, "ground"
+            road.envelope.buffer(GROUND_MARGIN_M, join_style="mitre"), -0.1, GROUND_RGBA, "ground"
         )
         self._flat(road, 0.0, ROAD_RGBA, "road")
         for area in m.sidewalks:
@@ -169,7 +173,7 @@ class TwinBuilder:
             self._flat(_zebra(crosswalk.polygon_m), PAINT_Z_M, WHITE_RGBA, "crosswalk")
         for stop_line in m.stop_lines:
             self._flat(stop_line_band(stop_line.line_m), 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
-        for building in m.buildings:
+        for building in m.buildings or generated_buildings(m):
             self._prism(building.footprint_m, 0.0, building.height_m, BUILDING_RGBA, "building")
         for tree in m.trees:
             self._tree(tree.position_m, tree.height_m, tree.crown_radius_m)
@@ -239,6 +243,57 @@ class TwinBuilder:
             self.twin.segmentation[body] = "signal"
             lamps.append((body, colour))
         self.twin.lamps.setdefault(signal_id, []).extend(lamps)
+
+
+def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
+    """Buildings for a map that has none, placed deterministically (seeded by the map id) in the
+    free space at least `BUILDING_SETBACK_M` from road, crosswalks and sidewalks, within
+    `BUILDING_REACH_M` of the junction, each turned to the nearest lane; flagged `generated`."""
+    road = shapely.union_all(
+        [intersection_map.drivable_union(), *(shapely.Polygon(c.polygon_m) for c in intersection_map.crosswalks),
+         *(shapely.Polygon(a.polygon_m) for a in intersection_map.sidewalks)]
+    )  # fmt: skip
+    keep_out = road.buffer(BUILDING_SETBACK_M)
+    stops = [s.line_m[:, :2] for s in intersection_map.stop_lines]
+    centre = np.concatenate(stops).mean(axis=0) if stops else np.asarray(road.centroid.coords[0])
+    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
+    placed: list[shapely.Polygon] = []
+    buildings = []
+    for x in np.arange(centre[0] - BUILDING_REACH_M, centre[0] + BUILDING_REACH_M, BUILDING_GRID_M):
+        for y in np.arange(
+            centre[1] - BUILDING_REACH_M, centre[1] + BUILDING_REACH_M, BUILDING_GRID_M
+        ):
+            point = shapely.Point(x, y)
+            if keep_out.contains(point) or point.distance(shapely.Point(centre)) > BUILDING_REACH_M:
+                continue
+            heading = _heading_near(intersection_map, point)
+            length, depth = rng.uniform(10, 20), rng.uniform(8, 16)
+            corners = (
+                np.array([[-length, -depth], [length, -depth], [length, depth], [-length, depth]])
+                / 2
+            )
+            rotation = np.array(
+                [[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]]
+            )
+            footprint = shapely.Polygon(corners @ rotation.T + [x, y])
+            if footprint.intersects(keep_out) or any(footprint.intersects(p) for p in placed):
+                continue
+            placed.append(footprint)
+            buildings.append(Building(f"generated_{len(buildings):03d}", np.asarray(footprint.exterior.coords)[:-1],
+                                      float(rng.choice([6.0, 9.0, 15.0, 24.0, 40.0])), generated=True))  # fmt: skip
+    return buildings
+
+
+def _heading_near(intersection_map: IntersectionMap, point: shapely.Point) -> float:
+    best, heading = np.inf, 0.0
+    for lane in intersection_map.lanes:
+        line = shapely.LineString(lane.centerline_m[:, :2])
+        distance = line.distance(point)
+        if distance < best:
+            s = line.project(point)
+            a, b = line.interpolate(max(s - 1.0, 0.0)), line.interpolate(min(s + 1.0, line.length))
+            best, heading = distance, float(np.arctan2(b.y - a.y, b.x - a.x))
+    return heading
 
 
 def paint_geometry(line: NDArray, mark: LaneMark) -> shapely.Geometry:

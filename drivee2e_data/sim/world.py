@@ -151,9 +151,10 @@ class World:
         vertical_fov_deg: float,
         far_m: float = 200.0,
         segmentation: bool = False,
+        near_m: float = 0.1,
     ) -> Image:
         """An image from a pinhole camera at `eye_m` looking at `target_m` (z up)."""
-        near = 0.1
+        near = near_m
         view = self.p.computeViewMatrix(
             list(eye_m), list(target_m), [0, 0, 1], physicsClientId=self.client
         )
