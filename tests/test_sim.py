@@ -217,3 +217,21 @@ def test_generated_buildings_keep_off_the_road_and_repeat():
     road = bare.drivable_union()
     for building in first:
         assert shapely.Polygon(building.footprint_m).distance(road) >= BUILDING_SETBACK_M - 1e-6
+
+
+def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
+    datasets.synthesize(tmp_path, clips=3, seed=5, intersections=1)
+    scenarios = [store.read_scenario(tmp_path, i) for i in store.scenario_ids(tmp_path)]
+    intersection_map = store.read_map(tmp_path, scenarios[0].map_id)
+    with World(intersection_map, scenarios[0], renderer="tiny", draw_radius_m=1e6) as world:
+        twin_bodies = list(world.twin.bodies)
+        for scenario in scenarios[1:]:
+            world.replay(scenario)
+            world.set_time(5)
+            track = next(t for t in scenario.tracks if t.valid[5])
+            position, _ = world.actor_pose(track.track_id)
+            assert np.hypot(position[0] - track.x_m[5], position[1] - track.y_m[5]) < 1e-3
+        assert world.twin.bodies == twin_bodies
+        other = type(scenarios[0])(**{**scenarios[0].__dict__, "map_id": "elsewhere"})
+        with pytest.raises(DriveE2EError, match="is on map 'elsewhere'"):
+            world.replay(other)

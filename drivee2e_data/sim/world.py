@@ -79,15 +79,29 @@ class World:
 
         self.p = pybullet
         self.client, self.renderer = connect(renderer)
-        self.scenario, self.draw_radius_m = scenario, draw_radius_m
+        self.intersection_map, self.draw_radius_m = intersection_map, draw_radius_m
         self.twin: Twin = build_twin(intersection_map, self.client)
+        self.bodies: dict[str, int] = {}
+        self.replay(scenario)
+
+    def replay(self, scenario: Scenario) -> None:
+        """Swap in another clip of the same map: its actors replace the previous clip's, the
+        twin stays (a twin is built once per map and reused for the map's clips)."""
+        if scenario.map_id != self.intersection_map.map_id:
+            raise DriveE2EError(
+                f"scenario {scenario.scenario_id!r} is on map {scenario.map_id!r}, this world shows "
+                f"{self.intersection_map.map_id!r}"
+            )
+        for body in self.bodies.values():
+            self.p.removeBody(body, physicsClientId=self.client)
+        self.scenario = scenario
         self.blueprints: dict[str, Blueprint] = {
             t.track_id: choose_blueprint(t) for t in scenario.tracks
         }
         self.bodies = {
             track_id: create_actor(self.client, bp) for track_id, bp in self.blueprints.items()
         }
-        self.lighting = lighting(scenario.conditions, intersection_map.origin)
+        self.lighting = lighting(scenario.conditions, self.intersection_map.origin)
         self.ego_xy = np.zeros(2)
         self.ego_id: str | None = None
         self.frame = -1
