@@ -64,10 +64,13 @@ def signal_replay(world: World, intersection_map, every: int) -> tuple[int, int]
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("data", type=Path)
-    parser.add_argument("--resolution", type=float, default=0.05, help="metres per pixel")
-    parser.add_argument("--size", type=int, default=2000, help="pixels per side")
+    parser.add_argument("--resolution", type=float, default=0.02, help="metres per pixel")
+    parser.add_argument("--size", type=int, default=3000, help="pixels per side")
     parser.add_argument("--renderer", default="auto")
     parser.add_argument("--every", type=int, default=10, help="check signals every N frames")
+    parser.add_argument(
+        "--fine-resolution", type=float, default=0.004, help="metres per pixel for thin elements"
+    )
     args = parser.parse_args()
     seen_maps: set[str] = set()
     size_errors: dict[str, list[float]] = defaultdict(list)
@@ -86,7 +89,12 @@ def main() -> None:
                 if stops
                 else scenario.tracks[0].xy_m[scenario.tracks[0].valid][0]
             )
-            iou = element_iou(world, intersection_map, Grid(centre, args.size, args.resolution))
+            iou = element_iou(
+                world,
+                intersection_map,
+                Grid(centre, args.size, args.resolution),
+                args.fine_resolution,
+            )
             exact, total = signal_replay(world, intersection_map, args.every)
             for track in scenario.tracks:
                 blueprint = np.array(world.blueprints[track.track_id].size_m)
