@@ -7,19 +7,19 @@ import zlib
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data.sensors.rig import default_rig
 from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
 
-# name, yaw offset from the ego's heading (deg), horizontal field of view (deg): nuScenes-like
-SURROUND_VIEWS = (
-    ("CAM_FRONT_LEFT", 55.0, 70.0),
-    ("CAM_FRONT", 0.0, 70.0),
-    ("CAM_FRONT_RIGHT", -55.0, 70.0),
-    ("CAM_BACK_LEFT", 110.0, 70.0),
-    ("CAM_BACK", 180.0, 110.0),
-    ("CAM_BACK_RIGHT", -110.0, 70.0),
+# the rig's cameras, in the order the sheet shows them (front row, back row)
+SHEET_ORDER = (
+    "CAM_FRONT_LEFT",
+    "CAM_FRONT",
+    "CAM_FRONT_RIGHT",
+    "CAM_BACK_LEFT",
+    "CAM_BACK",
+    "CAM_BACK_RIGHT",
 )
-CAMERA_HEIGHT_M = 1.6
 TILE = (480, 270)  # width, height of each surround view
 TOP_VIEW_HALF_WIDTH_M = 60.0
 
@@ -28,16 +28,16 @@ def surround(
     world: World, ego_xy_m: NDArray, ego_yaw_rad: float, frame: int = 0
 ) -> list[tuple[str, NDArray[np.uint8]]]:
     """The six views with the clip's weather and light applied."""
-    width, height = TILE
+    width, height = TILE  # the cameras' 16:9, smaller
+    rig = default_rig()
+    c, s_ = np.cos(ego_yaw_rad), np.sin(ego_yaw_rad)
+    ego_rotation = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
     views = []
-    for name, offset_deg, horizontal_fov in SURROUND_VIEWS:
-        yaw = ego_yaw_rad + np.deg2rad(offset_deg)
-        eye = np.array([ego_xy_m[0], ego_xy_m[1], CAMERA_HEIGHT_M])
-        target = eye + np.array([np.cos(yaw), np.sin(yaw), 0.0]) * 10.0
-        vertical = np.rad2deg(
-            2 * np.arctan(np.tan(np.deg2rad(horizontal_fov) / 2) * height / width)
-        )
-        image = world.render(eye, target, width, height, float(vertical))
+    for name in SHEET_ORDER:
+        camera = rig.camera(name)
+        eye = np.array([ego_xy_m[0], ego_xy_m[1], 0.0]) + ego_rotation @ camera.sensor_to_ego[:3, 3]
+        target = eye + 10.0 * (ego_rotation @ camera.sensor_to_ego[:3, 2])
+        image = world.render(eye, target, width, height, camera.vertical_fov_deg)
         seed = zlib.crc32(f"{world.scenario.scenario_id}/{frame}/{name}".encode())
         rgb = post_process(image.rgb, image.depth_m, world.scenario.conditions, world.lighting, seed,
                            headlights=name == "CAM_FRONT")  # fmt: skip

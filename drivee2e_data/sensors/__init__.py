@@ -1,0 +1,1 @@
+"""The sensor suite of the ego: rig calibrations first; cameras, LiDAR, radar and annotations follow."""
