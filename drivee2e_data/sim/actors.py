@@ -85,4 +85,7 @@ def create_actor(client: int, blueprint: Blueprint) -> int:
         visualFramePositions=[list(o) for o in offsets],
         physicsClientId=client,
     )
-    return pybullet.createMultiBody(0, -1, visual, [0, 0, -100], physicsClientId=client)
+    collision = pybullet.createCollisionShape(
+        pybullet.GEOM_BOX, halfExtents=[length / 2, width / 2, height / 2], physicsClientId=client
+    )  # the annotation box is what LiDAR and radar see
+    return pybullet.createMultiBody(0, collision, visual, [0, 0, -100], physicsClientId=client)

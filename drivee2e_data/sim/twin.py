@@ -102,24 +102,30 @@ class TwinBuilder:
         self.p, self.client = pybullet, client
         self.twin = Twin(client)
 
-    def _mesh(self, vertices: NDArray, indices: NDArray, rgba: tuple) -> int:
-        """A mesh visual shape, through an OBJ file: pybullet's EGL renderer cannot take meshes
-        given as vertex lists (it crashes), and both renderers read OBJ files."""
+    def _mesh(self, vertices: NDArray, indices: NDArray, rgba: tuple) -> tuple[int, int]:
+        """Visual and collision shapes of a mesh, through an OBJ file: pybullet's EGL renderer
+        cannot take meshes given as vertex lists (it crashes); the collision shape (a static
+        triangle mesh) is what LiDAR and radar rays hit."""
         path = self.twin.mesh_dir / f"mesh_{len(self.twin.bodies):05d}.obj"
         lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices]
         lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(indices).reshape(-1, 3)]
         path.write_text("\n".join(lines) + "\n")
-        return self.p.createVisualShape(
+        visual = self.p.createVisualShape(
             self.p.GEOM_MESH, fileName=str(path), rgbaColor=rgba, physicsClientId=self.client
         )
+        collision = self.p.createCollisionShape(
+            self.p.GEOM_MESH, fileName=str(path), flags=self.p.GEOM_FORCE_CONCAVE_TRIMESH,
+            physicsClientId=self.client,
+        )  # fmt: skip
+        return visual, collision
 
     def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str) -> None:
         vertices, indices = triangulate(geometry)
         if len(indices) == 0:
             return
         vertices_3d = np.column_stack([vertices, np.full(len(vertices), z_m)])
-        shape = self._mesh(vertices_3d, indices, rgba)
-        body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
+        visual, collision = self._mesh(vertices_3d, indices, rgba)
+        body = self.p.createMultiBody(0, collision, visual, [0, 0, 0], physicsClientId=self.client)
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind
 
@@ -140,8 +146,8 @@ class TwinBuilder:
         base = len(vertices)
         vertices += [[x, y, top_m] for x, y in roof]
         indices += (roof_indices + base).tolist()
-        shape = self._mesh(np.asarray(vertices), np.asarray(indices), rgba)
-        body = self.p.createMultiBody(0, -1, shape, [0, 0, 0], physicsClientId=self.client)
+        visual, collision = self._mesh(np.asarray(vertices), np.asarray(indices), rgba)
+        body = self.p.createMultiBody(0, collision, visual, [0, 0, 0], physicsClientId=self.client)
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind
 
@@ -196,8 +202,13 @@ class TwinBuilder:
             rgbaColor=rgba,
             physicsClientId=self.client,
         )
+        collision = self.p.createCollisionShape(
+            self.p.GEOM_BOX,
+            halfExtents=(0.5 * np.asarray(size)).tolist(),
+            physicsClientId=self.client,
+        )
         body = self.p.createMultiBody(
-            0, -1, shape, np.asarray(centre).tolist(), self.p.getQuaternionFromEuler([0, 0, yaw]),
+            0, collision, shape, np.asarray(centre).tolist(), self.p.getQuaternionFromEuler([0, 0, yaw]),
             physicsClientId=self.client,
         )  # fmt: skip
         self.twin.bodies.append(body)

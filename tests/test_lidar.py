@@ -1,0 +1,78 @@
+"""The LiDAR: known answers on flat ground with one box."""
+
+import numpy as np
+import pybullet
+import pytest
+
+from drivee2e_data.sensors.lidar import INTENSITY, beam_directions, sweep
+from drivee2e_data.sensors.rig import default_rig, pose
+
+HEIGHT_M = 1.85  # the rig's LiDAR mount height
+
+
+@pytest.fixture
+def scene():
+    client = pybullet.connect(pybullet.DIRECT)
+    ground = pybullet.createCollisionShape(
+        pybullet.GEOM_BOX, halfExtents=[200, 200, 0.5], physicsClientId=client
+    )
+    ground_body = pybullet.createMultiBody(0, ground, -1, [0, 0, -0.5], physicsClientId=client)
+    box = pybullet.createCollisionShape(
+        pybullet.GEOM_BOX, halfExtents=[1.0, 1.0, 1.5], physicsClientId=client
+    )
+    box_body = pybullet.createMultiBody(
+        0, box, -1, [21.0, 0.0, 1.5], physicsClientId=client
+    )  # front face at x = 20
+    yield client, {ground_body: "road"}, box_body
+    pybullet.disconnect(client)
+
+
+def test_beam_layout():
+    directions, ring = beam_directions(default_rig().lidar)
+    assert directions.shape == (64 * 1800, 3) and np.allclose(
+        np.linalg.norm(directions, axis=1), 1.0
+    )
+    assert ring.max() == 63 and np.rad2deg(np.arcsin(directions[0, 2])) == pytest.approx(10.0)
+
+
+def test_box_20m_ahead_and_ground_rings(scene):
+    client, kinds, box_body = scene
+    lidar = default_rig().lidar
+    sensor_to_world = pose(np.eye(3), np.array([0.0, 0.0, HEIGHT_M]))
+    result = sweep(client, lidar, sensor_to_world, kinds)
+    on_box = result.body == box_body
+    ahead = on_box & (np.abs(result.points_m[:, 1]) < 0.3)
+    assert ahead.sum() > 10
+    assert np.abs(result.points_m[ahead, 0] - 20.0).max() < 0.02  # +- 2 cm
+    ground = result.body != box_body
+    elevations = default_rig().lidar.elevations_rad[result.ring[ground]]
+    expected_range = HEIGHT_M / np.sin(-elevations)
+    measured_range = np.linalg.norm(result.points_m[ground], axis=1)
+    assert np.abs(measured_range - expected_range).max() < 0.02
+    assert (elevations < 0).all()  # upward beams hit nothing on flat ground
+    assert np.allclose(result.intensity[ground], INTENSITY["road"])
+    rings_on_ground = np.unique(result.ring[ground])
+    assert len(rings_on_ground) > 40
+
+
+def test_sweep_in_a_twin_sees_road_paint_and_agents(tmp_path):
+    from drivee2e_data import datasets, store
+    from drivee2e_data.sim.world import World
+
+    datasets.synthesize(tmp_path, clips=1, seed=3)
+    scenario = store.read_scenario(tmp_path, store.scenario_ids(tmp_path)[0])
+    with World(store.read_map(tmp_path, scenario.map_id), scenario, renderer="tiny") as world:
+        ego = scenario.ego
+        frame = 20
+        world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+        world.set_time(frame)
+        c, s = np.cos(ego.yaw_rad[frame]), np.sin(ego.yaw_rad[frame])
+        sensor_to_world = pose(
+            np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]),
+            np.array([ego.x_m[frame], ego.y_m[frame], HEIGHT_M]),
+        )
+        kinds = world.twin.segmentation
+        result = sweep(world.client, default_rig().lidar, sensor_to_world, kinds)
+    hit_kinds = {kinds.get(int(b), "agent") for b in result.body}
+    assert {"road", "road_mark", "agent"} <= hit_kinds
+    assert len(result.points_m) > 50_000  # most downward beams return
