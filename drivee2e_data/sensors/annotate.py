@@ -1,0 +1,97 @@
+"""Per-frame box annotations: 3D corners, the share of a box's projected area a camera sees
+(from the segmentation mask, binned as nuScenes does), and sensor points inside a box.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+
+from drivee2e_data.scenario import Track
+from drivee2e_data.sensors.camera import CameraFrame, camera_to_world
+
+# nuScenes visibility levels: 1: 0-40%, 2: 40-60%, 3: 60-80%, 4: 80-100% of the box seen
+VISIBILITY_BINS = (0.4, 0.6, 0.8)
+
+
+def box_corners_3d(
+    track: Track, frame: int, size_m: tuple[float, float, float] | None = None
+) -> NDArray[np.float64]:
+    """(8, 3) world corners of the track's box at `frame` (optionally with another size, e.g. the
+    blueprint's), bottom face first."""
+    length, width, height = size_m or (
+        track.length_m[frame],
+        track.width_m[frame],
+        track.height_m[frame],
+    )
+    ground = track.z_m[frame] - 0.5 * track.height_m[frame]
+    corners = np.array(
+        [
+            [sx * length / 2, sy * width / 2, sz * height]
+            for sz in (0, 1)
+            for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))
+        ]
+    )
+    c, s = np.cos(track.yaw_rad[frame]), np.sin(track.yaw_rad[frame])
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return corners @ rotation.T + np.array([track.x_m[frame], track.y_m[frame], ground])
+
+
+def projected_area(
+    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+) -> shapely.Geometry:
+    """The box's projection clipped to the image, as a polygon in pixels (empty when behind)."""
+    camera = frame.camera
+    world_to_camera = np.linalg.inv(camera_to_world(camera, ego_to_world))
+    points = np.column_stack([corners_world, np.ones(8)]) @ world_to_camera.T
+    in_front = points[:, 2] > 0.1
+    if not in_front.any():
+        return shapely.Polygon()
+    pixels = (camera.intrinsic @ points[in_front, :3].T).T
+    pixels = pixels[:, :2] / pixels[:, 2:3]
+    image = shapely.box(0, 0, camera.width, camera.height)
+    return shapely.MultiPoint(pixels).convex_hull.intersection(image)
+
+
+def visible_share(
+    frame: CameraFrame,
+    body: int,
+    corners_world: NDArray[np.float64],
+    ego_to_world: NDArray[np.float64],
+) -> float:
+    """Share of the box's projected area (in the image) whose pixels show the body itself."""
+    if frame.mask is None:
+        raise ValueError("visibility needs the camera's segmentation mask")
+    area = projected_area(frame, corners_world, ego_to_world)
+    if area.is_empty or area.area < 1.0:
+        return 0.0
+    x0, y0, x1, y1 = (int(v) for v in area.bounds)
+    rows, columns = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
+    rows, columns = rows.clip(0, frame.camera.height - 1), columns.clip(0, frame.camera.width - 1)
+    inside = shapely.contains_xy(area, columns + 0.5, rows + 0.5)
+    if not inside.any():
+        return 0.0
+    return float((frame.mask[rows[inside], columns[inside]] == body).sum() / inside.sum())
+
+
+def visibility_level(share: float) -> int:
+    """nuScenes visibility token 1-4 for a seen share; 0 for a box not seen at all."""
+    if share <= 0.0:
+        return 0
+    return 1 + int(np.searchsorted(VISIBILITY_BINS, share, side="right"))
+
+
+def points_in_box(points_world: NDArray[np.float64], corners_world: NDArray[np.float64]) -> int:
+    """How many points `(N, 3)` lie inside the box with these 8 corners (bottom face first)."""
+    origin = corners_world[2]  # (-l/2, -w/2, bottom)
+    axes = np.stack(
+        [
+            corners_world[1] - corners_world[2],
+            corners_world[3] - corners_world[2],
+            corners_world[6] - corners_world[2],
+        ]
+    )
+    relative = points_world - origin
+    coordinates = relative @ axes.T / np.sum(axes * axes, axis=1)
+    return int(np.all((coordinates >= 0) & (coordinates <= 1), axis=1).sum())

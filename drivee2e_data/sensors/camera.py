@@ -1,0 +1,53 @@
+"""Cameras of the rig rendered in the world: RGB, metric depth, a body-id mask, JPEG bytes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sensors.rig import Camera
+from drivee2e_data.sim.world import World
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    camera: Camera
+    rgb: NDArray[np.uint8]  # (H, W, 3)
+    depth_m: NDArray[np.float32]  # (H, W)
+    mask: NDArray[np.int32] | None  # (H, W) pybullet body id per pixel, -1 where none
+
+
+def camera_to_world(camera: Camera, ego_to_world: NDArray[np.float64]) -> NDArray[np.float64]:
+    return ego_to_world @ camera.sensor_to_ego
+
+
+def render(
+    world: World, camera: Camera, ego_to_world: NDArray[np.float64], mask: bool = True
+) -> CameraFrame:
+    """The camera's view at the world's current frame (the rig's cameras are level)."""
+    pose = camera_to_world(camera, ego_to_world)
+    eye = pose[:3, 3]
+    target = eye + 10.0 * pose[:3, 2]
+    image = world.render(
+        eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask
+    )
+    body_mask = None
+    if image.segmentation is not None:
+        body_mask = np.where(
+            image.segmentation >= 0, image.segmentation & ((1 << 24) - 1), -1
+        ).astype(np.int32)
+    return CameraFrame(camera, image.rgb, image.depth_m, body_mask)
+
+
+def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
+    """JPEG bytes of an RGB image."""
+    import cv2
+
+    ok, encoded = cv2.imencode(
+        ".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality]
+    )
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    return encoded.tobytes()
