@@ -6,6 +6,7 @@ skips them instead of redoing them.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections import Counter
 from collections.abc import Callable
@@ -263,7 +264,7 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
             maps[scenario.map_id] = store.read_map(root, scenario.map_id)
         intersection_map = maps[scenario.map_id]
         kept, qualities = quality.assess_scenario(scenario, intersection_map)
-        repaired = Scenario(**{**scenario.__dict__, "tracks": tuple(kept), "ego_id": None})
+        repaired = dataclasses.replace(scenario, tracks=tuple(kept), ego_id=None)
         kept_ids = {t.track_id for t in kept}
         ego_id, source, label = (
             None,
@@ -293,22 +294,18 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
         if label is not None:
             counts[label.category] += 1
         scores = [q.score for q in qualities]
-        curated = Scenario(
-            **{
-                **repaired.__dict__,
-                "ego_id": ego_id,
-                "route": route if ego_id is not None else None,
-                "behavior": None if label is None else BehaviorLabel(label, "labelled"),
-                "quality": {
-                    "mean_track_score": float(np.mean(scores)) if scores else 0.0,
-                    "min_track_score": float(np.min(scores)) if scores else 0.0,
-                    "tracks_dropped": float(sum(q.dropped for q in qualities)),
-                    "tracks_repaired": float(
-                        sum(bool(q.actions) and not q.dropped for q in qualities)
-                    ),
-                },
-                "metadata": metadata,
-            }
+        curated = dataclasses.replace(
+            repaired,
+            ego_id=ego_id,
+            route=route if ego_id is not None else None,
+            behavior=None if label is None else BehaviorLabel(label, "labelled"),
+            quality={
+                "mean_track_score": float(np.mean(scores)) if scores else 0.0,
+                "min_track_score": float(np.min(scores)) if scores else 0.0,
+                "tracks_dropped": float(sum(q.dropped for q in qualities)),
+                "tracks_repaired": float(sum(bool(q.actions) and not q.dropped for q in qualities)),
+            },
+            metadata=metadata,
         )
         store.write_scenario(root, curated)
         rows.append(

@@ -143,6 +143,14 @@ class Lane(ArrayValueEq):
     def length_m(self) -> float:
         return float(np.linalg.norm(np.diff(self.centerline_m[:, :2], axis=0), axis=1).sum())
 
+    def heading_at(self, x_m: float, y_m: float, half_window_m: float = 0.5) -> float:
+        """Heading (rad) of the centre line at the point nearest (x, y), over +-`half_window_m`."""
+        line = shapely.LineString(self.centerline_m[:, :2])
+        s = line.project(shapely.Point(x_m, y_m))
+        a = line.interpolate(max(s - half_window_m, 0.0))
+        b = line.interpolate(min(s + half_window_m, line.length))
+        return float(np.arctan2(b.y - a.y, b.x - a.x))
+
     def polygon(self) -> shapely.Polygon:
         """The lane's surface as a polygon (left boundary forward, right boundary back)."""
         ring = np.concatenate([self.left_boundary_m[:, :2], self.right_boundary_m[::-1, :2]])

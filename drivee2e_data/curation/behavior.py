@@ -23,7 +23,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.geometry import wrap_angle
-from drivee2e_data.hdmap import IntersectionMap, Lane, StopLine, TurnDirection
+from drivee2e_data.hdmap import IntersectionMap, StopLine, TurnDirection
 from drivee2e_data.scenario import AgentClass, Scenario, SignalState, SubScenario, Track
 
 FRAME_S = 0.1
@@ -92,13 +92,6 @@ def turn_of(ego: Track) -> TurnDirection:
     return TurnDirection.STRAIGHT
 
 
-def _lane_heading_at(lane: Lane, point: shapely.Point) -> float:
-    line = shapely.LineString(lane.centerline_m[:, :2])
-    s = line.project(point)
-    a, b = line.interpolate(max(s - 0.5, 0.0)), line.interpolate(min(s + 0.5, line.length))
-    return float(np.arctan2(b.y - a.y, b.x - a.x))
-
-
 def lanes_driven(ego: Track, intersection_map: IntersectionMap) -> list[str]:
     """Lanes the ego drives on, in order, matched by distance and heading."""
     frames, xy, _ = _ego_arrays(ego)
@@ -114,7 +107,7 @@ def lanes_driven(ego: Track, intersection_map: IntersectionMap) -> list[str]:
         best, best_distance = None, LANE_MATCH_M
         for lane_id, values in distance.items():
             if values[n] < best_distance:
-                heading = _lane_heading_at(by_id[lane_id], points[n])
+                heading = by_id[lane_id].heading_at(*xy[n])
                 if abs(wrap_angle(ego.yaw_rad[frame] - heading)) < np.deg2rad(60):
                     best, best_distance = lane_id, values[n]
         if best is not None and (not sequence or sequence[-1] != best):

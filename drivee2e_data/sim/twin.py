@@ -296,15 +296,11 @@ def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
 
 
 def _heading_near(intersection_map: IntersectionMap, point: shapely.Point) -> float:
-    best, heading = np.inf, 0.0
-    for lane in intersection_map.lanes:
-        line = shapely.LineString(lane.centerline_m[:, :2])
-        distance = line.distance(point)
-        if distance < best:
-            s = line.project(point)
-            a, b = line.interpolate(max(s - 1.0, 0.0)), line.interpolate(min(s + 1.0, line.length))
-            best, heading = distance, float(np.arctan2(b.y - a.y, b.x - a.x))
-    return heading
+    nearest = min(
+        intersection_map.lanes,
+        key=lambda lane: shapely.LineString(lane.centerline_m[:, :2]).distance(point),
+    )
+    return nearest.heading_at(point.x, point.y, half_window_m=1.0)
 
 
 def paint_geometry(line: NDArray, mark: LaneMark) -> shapely.Geometry:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.errors import MapFormatError, ScenarioFormatError
@@ -211,7 +212,8 @@ def read_hdmap(
             lane.lane_id
             for lane in lanes
             if not lane.is_intersection
-            and _distance_to_segment(lane.centerline_m[-1, :2], line[:, :2]) < 3.0
+            and shapely.LineString(line[:, :2]).distance(shapely.Point(lane.centerline_m[-1, :2]))
+            < 3.0
         ]
         stop_lines.append(StopLine(f"stop_{stop_id}", line, tuple(reach)))
     crosswalks = [
@@ -237,13 +239,6 @@ def read_hdmap(
         )
     except MapFormatError as error:
         raise MapFormatError(f"{path}: {error}") from None
-
-
-def _distance_to_segment(point: NDArray, line: NDArray) -> float:
-    a, b = line[0], line[-1]
-    ab = b - a
-    t = float(np.clip(np.dot(point - a, ab) / max(np.dot(ab, ab), 1e-9), 0.0, 1.0))
-    return float(np.linalg.norm(point - (a + t * ab)))
 
 
 # ------------------------------------------------------------------ trajectories

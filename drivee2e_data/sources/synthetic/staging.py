@@ -8,7 +8,7 @@ UT > YLW > IPC > COV > STP > plain turn.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -157,7 +157,7 @@ def _attempt(
         "v9999", ego_class, movement, 0.0, rng, runs_yellow=target.category.value == "YLW"
     )
     ego_spawn = arrival_s - (path.stop_s_m - 0.5 * ego.length_m) / ego.desired_speed_mps
-    ego = VehicleSpec(**{**ego.__dict__, "spawn_time_s": ego_spawn})
+    ego = replace(ego, spawn_time_s=ego_spawn)
 
     vehicles = [
         v
@@ -265,7 +265,7 @@ def _helpers(
         lead = 1.0 if target != SubScenario.COV_LFT else -0.5
         rival = make_vehicle("v9000", AgentClass.CAR, other, 0.0, rng)
         travel = (zone.other_start_m - 0.5 * rival.length_m) / rival.desired_speed_mps
-        rival = VehicleSpec(**{**rival.__dict__, "spawn_time_s": ego_at_zone - lead - travel})
+        rival = replace(rival, spawn_time_s=ego_at_zone - lead - travel)
         return [rival], []
     return [], []
 
