@@ -1,4 +1,2 @@
-"""Expert-data collection: drive each clip's ego along its recorded path and log the sensor suite.
-
-Importable as `drivee2e_data.collect`; filled in by the collector issue (sensors, MCAP logs).
-"""
+"""Expert-data collection: drive each clip's ego along its recorded path with the sensor suite
+and write one MCAP log per clip, in a local process pool or on Ray, resumably."""

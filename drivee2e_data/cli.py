@@ -10,9 +10,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from drivee2e_data import __version__, datasets, figures
+from drivee2e_data.collect import runner as collect_runner
+from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.runner import BACKENDS
 from drivee2e_data.datasets import write_view
-from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.errors import DriveE2EError, LogFormatError
+from drivee2e_data.logs import topics
+from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
+from drivee2e_data.sim.world import RENDERERS
 
 CLASS_ABBREVIATION = {
     AgentClass.CAR: "car",
@@ -87,7 +93,102 @@ def build_parser() -> argparse.ArgumentParser:
     scenarios.add_argument(
         "--plot", type=Path, default=None, help="draw the distributions to this PNG"
     )
+    collect = commands.add_parser(
+        "collect", help="drive every clip's ego with the sensor suite; one MCAP log per clip"
+    )
+    collect.add_argument("data", type=Path, help="data root (curated: every clip needs an ego)")
+    collect.add_argument("--workers", type=_positive, default=1, help="processes (default 1)")
+    collect.add_argument("--backend", choices=BACKENDS, default="local")
+    collect.add_argument("--renderer", choices=RENDERERS, default="auto")
+    collect.add_argument(
+        "--cameras", nargs="+", choices=topics.CAMERAS, default=None, help="default: all six"
+    )
+    collect.add_argument(
+        "--image-size", type=_size, default=None, metavar="WxH", help="default 1600x900"
+    )
+    collect.add_argument("--jpeg-quality", type=int, default=85, choices=range(1, 101), metavar="Q")
+    collect.add_argument(
+        "--max-frames", type=_positive, default=None, help="only the first N frames of each clip"
+    )
+    collect.add_argument("--only", nargs="+", default=None, metavar="ID", help="these clips only")
+
+    logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
+    logs.add_argument("data", type=Path, help="data root")
+    logs.add_argument("--validate", action="store_true", help="check every topic at every frame")
     return parser
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH such as 1600x900, got {text!r}") from None
+    if width < 16 or height < 16:
+        raise argparse.ArgumentTypeError(f"image size {text}: expected at least 16x16")
+    return width, height
+
+
+def _collect(args: argparse.Namespace) -> int:
+    options = CollectOptions(
+        renderer=args.renderer,
+        cameras=tuple(args.cameras) if args.cameras else None,
+        image_size=args.image_size,
+        jpeg_quality=args.jpeg_quality,
+        max_frames=args.max_frames,
+    )
+    bars: list[tqdm] = []
+
+    def progress(total: int, clips: int):  # type: ignore[no-untyped-def]
+        bars.append(tqdm(total=total, unit="frame", desc=f"collecting {clips} clips", disable=None))
+        return bars[0].update
+
+    try:
+        summary = collect_runner.collect(
+            args.data, options, args.workers, args.backend, args.only, progress
+        )
+    finally:
+        for bar in bars:
+            bar.close()
+    collected, skipped, failed = (summary.of(s) for s in ("collected", "skipped", "failed"))
+    print(
+        f"{len(collected)} clips collected, {len(skipped)} already done, {len(failed)} failed; "
+        f"{summary.frames} frames in {summary.wall_seconds:.0f} s "
+        f"({summary.frames_per_second:.2f} frames/s); logs {summary.log_bytes / 1e9:.2f} GB "
+        f"under {args.data / 'logs'}; index {summary.index_rows} frames"
+    )
+    for result in failed:
+        print(f"failed: {result.scenario_id}: {result.error}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _logs(args: argparse.Namespace) -> int:
+    paths = sorted((args.data / "logs").glob("*.mcap"))
+    if not paths:
+        raise DriveE2EError(
+            f"{args.data}: no logs under {args.data / 'logs'}; run drivee2e collect"
+        )
+    rows, bad = [], 0
+    for path in paths:
+        try:
+            with LogReader(path) as log:
+                if args.validate:
+                    log.validate()
+                rows.append(
+                    (
+                        log.scenario_id,
+                        str(log.num_frames),
+                        f"{path.stat().st_size / 1e6:.1f}",
+                        ",".join(c.removeprefix("CAM_") for c in log.cameras),
+                        log.collection.get("renderer", "?"),
+                        "valid" if args.validate else "-",
+                    )
+                )
+        except LogFormatError as error:
+            bad += 1
+            print(f"invalid: {error}", file=sys.stderr)
+    _print_table(("log", "frames", "MB", "cameras", "renderer", "check"), rows)
+    print(f"{len(rows)} logs" + (f", {bad} invalid" if bad else ""))
+    return 1 if bad else 0
 
 
 def _synth(args: argparse.Namespace) -> int:
@@ -209,6 +310,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "curate": _curate,
         "view": _view,
         "scenarios": _scenarios,
+        "collect": _collect,
+        "logs": _logs,
     }
     try:
         return handlers[args.command](args)

@@ -21,3 +21,7 @@ class MapFormatError(ScenarioFormatError):
 
 class SchemaVersionError(DriveE2EError):
     """Data on disk was written by a newer schema than this code reads."""
+
+
+class LogFormatError(DriveE2EError):
+    """An MCAP log is incomplete or breaks the contract (a topic missing at a frame, a count off)."""

@@ -60,6 +60,26 @@ def rotation_from_quaternion(quaternion_wxyz: FloatArray) -> FloatArray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
+def quaternion_from_rotation(rotation: FloatArray) -> FloatArray:
+    """The unit quaternion (w, x, y, z) of a 3x3 rotation matrix, w >= 0."""
+    m = np.asarray(rotation, dtype=np.float64)
+    trace = np.trace(m)
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, 0.0]
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    result = np.array(q)
+    return result if result[0] >= 0 else -result
+
+
 def polyline_arclength(points_m: FloatArray) -> FloatArray:
     """Cumulative arclength `(N,)` of a polyline `(N, D)`, starting at 0."""
     segments = np.linalg.norm(np.diff(points_m, axis=0), axis=1)

@@ -148,7 +148,7 @@ def write_scenario(root: Path, scenario: Scenario) -> Path:
     with _atomic_folder(final) as folder:
         pq.write_table(_tracks_table(scenario), folder / "tracks.parquet", compression="zstd")
         pq.write_table(_signals_table(scenario), folder / "signals.parquet", compression="zstd")
-        (folder / "meta.json").write_bytes(_json_bytes(_meta_document(scenario)))
+        (folder / "meta.json").write_bytes(_json_bytes(meta_document(scenario)))
     return final
 
 
@@ -200,7 +200,7 @@ def read_scenario(root: Path, scenario_id: str, *, require_map: bool = True) -> 
         raise ScenarioFormatError(f"{folder}: {error}") from None
 
 
-def _meta_document(scenario: Scenario) -> dict[str, Any]:
+def meta_document(scenario: Scenario) -> dict[str, Any]:
     route = scenario.route
     behavior = scenario.behavior
     return {

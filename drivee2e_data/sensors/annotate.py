@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import shapely
 from numpy.typing import NDArray
@@ -66,13 +67,16 @@ def visible_share(
     area = projected_area(frame, corners_world, ego_to_world)
     if area.is_empty or area.area < 1.0:
         return 0.0
-    x0, y0, x1, y1 = (int(v) for v in area.bounds)
-    rows, columns = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
-    rows, columns = rows.clip(0, frame.camera.height - 1), columns.clip(0, frame.camera.width - 1)
-    inside = shapely.contains_xy(area, columns + 0.5, rows + 0.5)
-    if not inside.any():
+    x0, y0 = (int(np.floor(v)) for v in area.bounds[:2])
+    x1 = min(int(np.ceil(area.bounds[2])), frame.camera.width)
+    y1 = min(int(np.ceil(area.bounds[3])), frame.camera.height)
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    outline = (np.asarray(area.exterior.coords) - (x0, y0)) * 16  # 4 bits of sub-pixel precision
+    cv2.fillPoly(inside, [np.round(outline).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    covered = inside.astype(bool)
+    if not covered.any():
         return 0.0
-    return float((frame.mask[rows[inside], columns[inside]] == body).sum() / inside.sum())
+    return float((frame.mask[y0:y1, x0:x1][covered] == body).sum() / covered.sum())
 
 
 def visibility_level(share: float) -> int:

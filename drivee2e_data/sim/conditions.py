@@ -90,16 +90,20 @@ def post_process(
     headlights: bool = False,
 ) -> NDArray[np.uint8]:
     """The weather and light of `conditions` applied to an image with its metric depth."""
+    visibility = VISIBILITY_M[conditions.weather]
+    wet = conditions.weather in (Weather.RAIN, Weather.WET)
+    if visibility is None and not wet and not light.night:
+        return rgb  # clear air by day: the render as is
     image = rgb.astype(np.float32)
     rng = np.random.default_rng(seed)
-    if conditions.weather in (Weather.RAIN, Weather.WET):
-        below = _below_horizon(depth_m)
-        image[below] *= WET_DARKENING
-    visibility = VISIBILITY_M[conditions.weather]
+    if wet:
+        image[_below_horizon(depth_m)] *= WET_DARKENING
     if visibility is not None:
-        transmission = np.exp(-3.0 * np.minimum(depth_m, 1e4) / visibility)[..., None]
-        fog = FOG_RGB * (NIGHT_GAIN if light.night else 1.0)
-        image = image * transmission + fog * (1 - transmission)
+        transmission = np.exp(np.minimum(depth_m, 1e4) * np.float32(-3.0 / visibility))[..., None]
+        fog = (FOG_RGB * (NIGHT_GAIN if light.night else 1.0)).astype(np.float32)
+        image -= fog
+        image *= transmission
+        image += fog  # fog + (image - fog) * transmission
     if light.night:
         image *= NIGHT_GAIN
         if headlights:
@@ -109,11 +113,14 @@ def post_process(
                 np.arange(height)[:, None] > height * 0.45
             )
             falloff = np.clip(1.0 - depth_m / HEADLIGHT_REACH_M, 0.0, 1.0) * cone
-            image *= 1.0 + 3.0 * falloff[..., None]
-        image += rng.normal(0.0, NIGHT_NOISE_SIGMA, image.shape)
+            image *= (1.0 + 3.0 * falloff[..., None]).astype(np.float32)
+        noise = rng.standard_normal(image.shape, dtype=np.float32)
+        noise *= NIGHT_NOISE_SIGMA
+        image += noise
     if conditions.weather == Weather.RAIN:
         image = _rain(image, rng)
-    return np.clip(image, 0, 255).astype(np.uint8)
+    np.clip(image, 0, 255, out=image)
+    return image.astype(np.uint8)
 
 
 def _below_horizon(depth_m: NDArray[np.float32]) -> NDArray[np.bool_]:

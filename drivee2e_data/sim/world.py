@@ -9,8 +9,14 @@ pose for closed loop). Actors farther than `draw_radius_m` from the ego are not 
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
+import os
 import pkgutil
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +30,7 @@ from drivee2e_data.sim.conditions import lighting
 from drivee2e_data.sim.twin import Twin, build_twin
 
 LOG = logging.getLogger(__name__)
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c"))
 HIDDEN_Z_M = -100.0  # actors not drawn wait here, under the ground
 RENDERERS = ("auto", "egl", "tiny")
 _logged_choice: set[str] = set()
@@ -36,8 +43,37 @@ class Image:
     segmentation: NDArray[np.int32] | None  # (H, W) body id per pixel, -1 for background
 
 
+@contextmanager
+def quiet_native_output() -> Iterator[None]:
+    """Silence what pybullet's C code prints (its build time on import, the EGL driver's banner
+    on loading and unloading the plugin, on stdout and stderr) around one call; Python's own
+    output and exceptions are untouched."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    try:
+        saved = (os.dup(1), os.dup(2))
+    except OSError:  # no file descriptors 1 and 2 (embedded interpreters): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            os.dup2(devnull.fileno(), 2)
+        yield
+    finally:
+        _LIBC.fflush(None)  # C's buffered output goes to /dev/null, not to the restored streams
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
+
+
 def connect(renderer: str = "auto") -> tuple[int, str]:
     """A new DIRECT pybullet client and the renderer it will use ('egl' or 'tiny')."""
+    with quiet_native_output():
+        return _connect(renderer)
+
+
+def _connect(renderer: str) -> tuple[int, str]:
     import pybullet
 
     if renderer not in RENDERERS:
@@ -75,7 +111,8 @@ class World:
         renderer: str = "auto",
         draw_radius_m: float = 120.0,
     ) -> None:
-        import pybullet
+        with quiet_native_output():
+            import pybullet
 
         self.p = pybullet
         self.client, self.renderer = connect(renderer)
@@ -107,7 +144,8 @@ class World:
         self.frame = -1
 
     def close(self) -> None:
-        self.p.disconnect(self.client)
+        with quiet_native_output():
+            self.p.disconnect(self.client)
         self.twin.remove_files()
 
     def __enter__(self) -> World:
@@ -166,11 +204,16 @@ class World:
         far_m: float = 200.0,
         segmentation: bool = False,
         near_m: float = 0.1,
+        up: NDArray[np.float64] | tuple[float, float, float] = (0.0, 0.0, 1.0),
     ) -> Image:
-        """An image from a pinhole camera at `eye_m` looking at `target_m` (z up)."""
+        """An image from a pinhole camera at `eye_m` looking at `target_m`, `up` pointing up in
+        the image (world z unless given)."""
         near = near_m
         view = self.p.computeViewMatrix(
-            list(eye_m), list(target_m), [0, 0, 1], physicsClientId=self.client
+            [float(v) for v in eye_m],
+            [float(v) for v in target_m],
+            [float(v) for v in up],
+            physicsClientId=self.client,
         )
         projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height, near, far_m,
                                                        physicsClientId=self.client)  # fmt: skip
@@ -178,15 +221,16 @@ class World:
         renderer = (
             self.p.ER_BULLET_HARDWARE_OPENGL if self.renderer == "egl" else self.p.ER_TINY_RENDERER
         )
-        _, _, rgba, depth, seg = self.p.getCameraImage(
-            width,
-            height,
-            view,
-            projection,
-            renderer=renderer,
-            flags=flags,
-            physicsClientId=self.client,
-        )
+        with quiet_native_output():
+            _, _, rgba, depth, seg = self.p.getCameraImage(
+                width,
+                height,
+                view,
+                projection,
+                renderer=renderer,
+                flags=flags,
+                physicsClientId=self.client,
+            )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
         buffer = np.asarray(depth, dtype=np.float32).reshape(height, width)
         depth_m = (far_m * near / (far_m - (far_m - near) * buffer)).astype(np.float32)

@@ -1,0 +1,135 @@
+"""One clip, one job: replay the clip in a pybullet world, capture the sensor suite at every
+frame, write the log atomically. A job never raises for a bad clip: it returns a `JobResult`
+saying why, so one clip cannot stop the others.
+
+A worker process keeps its last world and reuses its twin when the next clip is on the same
+map (building a twin takes a second or two).
+"""
+
+from __future__ import annotations
+
+import atexit
+import resource
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from drivee2e_data import store
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.logs.writer import LogWriter
+from drivee2e_data.sensors.suite import STAGES, SensorSuite, SuiteOptions
+from drivee2e_data.sim.world import World
+
+LOGS_FOLDER = "logs"
+
+
+@dataclass(frozen=True)
+class CollectOptions:
+    renderer: str = "auto"
+    cameras: tuple[str, ...] | None = None  # None: all six
+    image_size: tuple[int, int] | None = None  # None: 1600x900
+    jpeg_quality: int = 85
+    max_frames: int | None = None  # None: the whole clip
+
+    def suite(self) -> SuiteOptions:
+        return SuiteOptions(self.cameras, self.image_size, self.jpeg_quality)
+
+
+@dataclass
+class JobResult:
+    scenario_id: str
+    status: str  # "collected", "skipped" (a finished log was there) or "failed"
+    frames: int = 0
+    log_bytes: int = 0
+    seconds: float = 0.0
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+    peak_rss_bytes: int = 0
+    renderer: str = ""
+    error: str | None = None
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+
+def log_path(root: Path, scenario_id: str) -> Path:
+    return Path(root) / LOGS_FOLDER / f"{scenario_id}.mcap"
+
+
+_world: World | None = None  # this process's world, kept for the next clip on its map
+
+
+@atexit.register
+def _close_world() -> None:
+    if _world is not None:
+        _world.close()
+
+
+def _world_for(root: Path, scenario_id: str, renderer: str) -> World:
+    global _world
+    scenario = store.read_scenario(root, scenario_id)
+    if _world is not None and (
+        _world.intersection_map.map_id != scenario.map_id
+        or renderer not in ("auto", _world.renderer)
+    ):
+        _world.close()
+        _world = None
+    if _world is None:
+        _world = World(store.read_map(root, scenario.map_id), scenario, renderer=renderer)
+    else:
+        _world.replay(scenario)
+    return _world
+
+
+def collect_clip(
+    root: Path,
+    scenario_id: str,
+    options: CollectOptions,
+    on_frame: Callable[[int], None] | None = None,
+) -> JobResult:
+    """Collect one clip into `root/logs/<scenario_id>.mcap` unless that log exists."""
+    path = log_path(root, scenario_id)
+    if path.exists():
+        return JobResult(scenario_id, "skipped", log_bytes=path.stat().st_size)
+    start = time.perf_counter()
+    stage_seconds = dict.fromkeys((*STAGES, "write"), 0.0)
+    result = JobResult(scenario_id, "failed", stage_seconds=stage_seconds)
+    try:
+        world = _world_for(Path(root), scenario_id, options.renderer)
+        result.renderer = world.renderer
+        suite = SensorSuite(world, options.suite())
+        scenario = world.scenario
+        frames = range(scenario.num_frames)
+        if options.max_frames is not None:
+            frames = range(min(options.max_frames, scenario.num_frames))
+        collection = {
+            "renderer": world.renderer,
+            "jpeg_quality": str(options.jpeg_quality),
+            "cameras": ",".join(c.name for c in suite.rig.cameras),
+        }
+        with LogWriter(
+            path, scenario, world.intersection_map, suite.rig, suite.motion, collection
+        ) as writer:
+            for frame in frames:
+                captured = suite.capture(frame)
+                for stage, seconds in captured.seconds.items():
+                    stage_seconds[stage] += seconds
+                tick = time.perf_counter()
+                writer.write(captured)
+                stage_seconds["write"] += time.perf_counter() - tick
+                result.frames += 1
+                if on_frame is not None:
+                    on_frame(1)
+        result.status = "collected"
+        result.log_bytes = path.stat().st_size
+    except (DriveE2EError, ValueError, KeyError, OSError) as error:
+        result.error = f"{type(error).__name__}: {error}"
+    except Exception as error:  # a bug must not stop the other clips; keep where it happened
+        where = traceback.extract_tb(error.__traceback__)[-1]
+        result.error = (
+            f"{type(error).__name__}: {error} ({Path(where.filename).name}:{where.lineno})"
+        )
+    result.seconds = time.perf_counter() - start
+    result.peak_rss_bytes = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    return result

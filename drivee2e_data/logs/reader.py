@@ -1,0 +1,176 @@
+"""Reads a clip's log: metadata, one frame's messages by random access (only the chunks that
+hold that frame are read and decompressed), the ego's states, and validation against the
+contract. Needs only `mcap` and protobuf; never the simulator.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from numpy.typing import NDArray
+
+from drivee2e_data.errors import LogFormatError
+from drivee2e_data.logs import topics
+from drivee2e_data.sensors.ego_state import (
+    FUTURE_STEPS,
+    FUTURE_STRIDE_FRAMES,
+    future_path,
+)
+
+REQUIRED_METADATA = (
+    topics.SCENARIO_METADATA,
+    topics.RIG_METADATA,
+    topics.COLLECTION_METADATA,
+    topics.FRAMES_METADATA,
+)
+
+
+class LogReader:
+    """One log, open for reading. Frames are numbered as in the scenario (`first_frame` on)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "rb")
+        except OSError as error:
+            raise LogFormatError(f"{self.path}: cannot open ({error.strerror})") from None
+        try:
+            self._reader = make_reader(self._file, decoder_factories=[DecoderFactory()])
+            summary = self._reader.get_summary()
+            metadata = {
+                record.name: dict(record.metadata) for record in self._reader.iter_metadata()
+            }
+        except (McapError, ValueError, EOFError, OSError) as error:
+            self._file.close()
+            raise LogFormatError(f"{self.path}: not a complete MCAP log ({error})") from None
+        if summary is None:
+            self._file.close()
+            raise LogFormatError(f"{self.path}: the log has no summary section (incomplete)")
+        missing = [name for name in REQUIRED_METADATA if name not in metadata]
+        if missing:
+            self._file.close()
+            raise LogFormatError(f"{self.path}: metadata record {missing[0]!r} is missing")
+        self.summary, self.metadata = summary, metadata
+        frames = metadata[topics.FRAMES_METADATA]
+        self.first_frame = int(frames["first_frame"])
+        self.t_ns: NDArray[np.int64] = np.array(json.loads(frames["t_ns"]), np.int64)
+        self.scenario_meta: dict[str, Any] = json.loads(metadata[topics.SCENARIO_METADATA]["meta"])
+        self.rig: dict[str, Any] = json.loads(metadata[topics.RIG_METADATA]["rig"])
+        self.collection: dict[str, str] = metadata[topics.COLLECTION_METADATA]
+
+    @property
+    def scenario_id(self) -> str:
+        return str(self.scenario_meta["scenario_id"])
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.t_ns)
+
+    @property
+    def frames(self) -> range:
+        return range(self.first_frame, self.first_frame + self.num_frames)
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return tuple(self.rig["cameras"])
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> LogReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def time_of(self, frame: int) -> int:
+        if frame not in self.frames:
+            raise IndexError(
+                f"{self.path}: frame {frame} is not in the log (frames {self.frames.start}-"
+                f"{self.frames.stop - 1})"
+            )
+        return int(self.t_ns[frame - self.first_frame])
+
+    def frame(self, frame: int, topic_names: Iterable[str] | None = None) -> dict[str, Any]:
+        """Decoded messages of one frame, by topic (all topics unless `topic_names` is given)."""
+        t = self.time_of(frame)
+        wanted = None if topic_names is None else list(topic_names)
+        return {
+            channel.topic: message
+            for _, channel, _, message in self._reader.iter_decoded_messages(
+                topics=wanted, start_time=t, end_time=t + 1
+            )
+        }
+
+    def ego_states(self) -> list[Any]:
+        """Every frame's `/ego/state`, in frame order."""
+        return [m for _, _, _, m in self._reader.iter_decoded_messages(topics=[topics.EGO_STATE])]
+
+    def future_path(self, frame: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """The ego's 2 Hz future over 3 s in its frame at `frame`, `(6, 2)`, and which steps the
+        log has; read from the `/ego/state` of those frames only."""
+        steps = [frame + FUTURE_STRIDE_FRAMES * k for k in range(FUTURE_STEPS + 1)]
+        present = [s for s in steps if s in self.frames]
+        states = {s: self.frame(s, [topics.EGO_STATE])[topics.EGO_STATE] for s in present}
+        # positions by frame offset from `frame`; absent steps stay out of the arrays
+        offsets = np.array([s - frame for s in present])
+        x = np.full(offsets.max() + 1, np.nan)
+        y, yaw = x.copy(), x.copy()
+        for s, state in states.items():
+            x[s - frame], y[s - frame], yaw[s - frame] = state.x, state.y, state.yaw
+        path, mask = future_path(x, y, yaw, 0)
+        return path, mask
+
+    def validate(self) -> None:
+        """Every per-frame topic once at every frame, `/map` once at the first, and the
+        summary's counts agreeing; raises `LogFormatError` naming the first gap."""
+        expected = set(topics.per_frame_topics(self.cameras))
+        times = {int(t): self.first_frame + i for i, t in enumerate(self.t_ns)}
+        seen: Counter[tuple[str, int]] = Counter()
+        try:
+            for _, channel, message in self._reader.iter_messages():
+                if message.log_time not in times:
+                    raise LogFormatError(
+                        f"{self.path}: topic {channel.topic} has a message at t_ns "
+                        f"{message.log_time}, which is no frame of the log"
+                    )
+                seen[(channel.topic, message.log_time)] += 1
+        except McapError as error:
+            raise LogFormatError(f"{self.path}: unreadable chunk ({error})") from None
+        first = int(self.t_ns[0])
+        for t, frame in times.items():
+            for topic in sorted(expected | {topics.MAP}):
+                count, wanted = seen[(topic, t)], 1
+                if topic == topics.MAP:
+                    wanted = 1 if t == first else 0
+                if count != wanted:
+                    raise LogFormatError(
+                        f"{self.path}: topic {topic} has {count} messages at frame {frame} "
+                        f"(t_ns {t}), expected {wanted}"
+                    )
+        unexpected = {topic for topic, _ in seen} - expected - {topics.MAP}
+        if unexpected:
+            raise LogFormatError(f"{self.path}: unexpected topic {sorted(unexpected)[0]}")
+        counts = self.summary.statistics.channel_message_counts if self.summary.statistics else {}
+        for channel_id, channel in self.summary.channels.items():
+            wanted = 1 if channel.topic == topics.MAP else self.num_frames
+            if counts.get(channel_id) != wanted:
+                raise LogFormatError(
+                    f"{self.path}: the summary counts {counts.get(channel_id)} messages on "
+                    f"{channel.topic}, expected {wanted}"
+                )
+
+
+def validate(path: Path) -> int:
+    """Validate the log at `path`; returns its number of frames."""
+    with LogReader(path) as log:
+        log.validate()
+        return log.num_frames

@@ -1,0 +1,69 @@
+"""Topic names of a clip's log (ARCHITECTURE.md, "The MCAP contract") and which are per frame."""
+
+from __future__ import annotations
+
+CAMERAS = (
+    "CAM_FRONT",
+    "CAM_FRONT_RIGHT",
+    "CAM_FRONT_LEFT",
+    "CAM_BACK",
+    "CAM_BACK_LEFT",
+    "CAM_BACK_RIGHT",
+)
+RADARS = (
+    "RADAR_FRONT",
+    "RADAR_FRONT_LEFT",
+    "RADAR_FRONT_RIGHT",
+    "RADAR_BACK_LEFT",
+    "RADAR_BACK_RIGHT",
+)
+LIDAR = "/LIDAR_TOP"
+TF = "/tf"
+GNSS = "/gnss"
+IMU = "/imu"
+EGO_STATE = "/ego/state"
+OBJECTS = "/annotations/objects"
+SCENE = "/annotations/scene"
+TRAFFIC_LIGHTS = "/traffic_lights"
+BEV = "/bev"
+MAP = "/map"  # once, at the first frame
+
+# frame ids of /tf: the world, the ego (rear axle), each sensor by its name
+WORLD_FRAME = "world"
+EGO_FRAME = "ego"
+
+# metadata record names
+SCENARIO_METADATA = "drivee2e.scenario"
+RIG_METADATA = "drivee2e.rig"
+COLLECTION_METADATA = "drivee2e.collection"
+FRAMES_METADATA = "drivee2e.frames"  # written last: first frame, count, times
+
+
+def image_topic(camera: str) -> str:
+    return f"/{camera}/image_compressed"
+
+
+def camera_info_topic(camera: str) -> str:
+    return f"/{camera}/camera_info"
+
+
+def radar_topic(radar: str) -> str:
+    return f"/{radar}"
+
+
+def per_frame_topics(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
+    """Every topic a log carries at every frame, given the cameras it records."""
+    return (
+        *(image_topic(c) for c in cameras),
+        *(camera_info_topic(c) for c in cameras),
+        LIDAR,
+        *(radar_topic(r) for r in RADARS),
+        TF,
+        GNSS,
+        IMU,
+        EGO_STATE,
+        OBJECTS,
+        SCENE,
+        TRAFFIC_LIGHTS,
+        BEV,
+    )

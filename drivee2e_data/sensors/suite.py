@@ -1,0 +1,241 @@
+"""The whole rig for one frame: cameras (rendered, weather applied, JPEG), the LiDAR sweep,
+radar returns, GNSS and IMU, the top view, and every agent's box annotation.
+
+`SensorSuite.capture(frame)` poses the world at the logged frame with the ego at its logged
+pose and returns a `SensorFrame`, plain data the log writer turns into messages. Wall time per
+stage is kept in `SensorFrame.seconds` for the collection benchmark.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.scenario import SignalState
+from drivee2e_data.sensors import annotate, bev, lidar, radar
+from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render
+from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
+from drivee2e_data.sensors.imu_gnss import enu_to_wgs84, imu
+from drivee2e_data.sensors.rig import Rig, default_rig
+from drivee2e_data.sim.conditions import post_process
+from drivee2e_data.sim.world import World
+
+STAGES = ("render", "post_process", "jpeg", "lidar", "radar", "annotate", "bev")
+ANNOTATION_RANGE_M = 100.0  # boxes farther from the ego than this are not annotated
+
+
+@dataclass(frozen=True)
+class SuiteOptions:
+    cameras: tuple[str, ...] | None = None  # None: all six
+    image_size: tuple[int, int] | None = None  # (width, height); None: the rig's 1600x900
+    jpeg_quality: int = 85
+    bev_size_px: int = bev.DEFAULT_SIZE_PX
+
+
+@dataclass(frozen=True)
+class BoxAnnotation:
+    """One agent's box at a frame, sized as the blueprint drawn for it."""
+
+    track_id: str
+    category: str
+    blueprint: str
+    size_m: NDArray[np.float64]  # (3,) length, width, height
+    centre_world_m: NDArray[np.float64]  # (3,)
+    yaw_world_rad: float
+    velocity_world_mps: NDArray[np.float64]  # (2,)
+    centre_ego_m: NDArray[np.float64]  # (3,)
+    yaw_ego_rad: float
+    velocity_ego_mps: NDArray[np.float64]  # (2,) rotated into the ego frame
+    visibility: int  # nuScenes token 0-4
+    visible_share: float
+    cameras: tuple[str, ...]
+    num_lidar_points: int
+    num_radar_points: int
+
+
+@dataclass(frozen=True)
+class SensorFrame:
+    frame: int
+    t_ns: int
+    ego_to_world: NDArray[np.float64]  # (4, 4)
+    jpeg: dict[str, bytes]  # camera name -> JPEG bytes
+    lidar: lidar.LidarSweep
+    radars: dict[str, radar.RadarReturns]
+    gnss_lat_lon_alt: NDArray[np.float64]  # (3,) degrees, degrees, metres
+    imu_acceleration_mps2: NDArray[np.float64]  # (3,) vehicle frame
+    imu_angular_velocity_radps: NDArray[np.float64]  # (3,)
+    boxes: tuple[BoxAnnotation, ...]
+    signals: dict[str, SignalState]
+    bev_jpeg: bytes
+    seconds: dict[str, float] = field(default_factory=dict)  # wall time per stage
+
+
+class SensorSuite:
+    """The rig mounted on the ego of the world's scenario."""
+
+    def __init__(self, world: World, options: SuiteOptions | None = None) -> None:
+        self.world, self.options = world, options or SuiteOptions()
+        self.rig = configured_rig(self.options)
+        scenario = world.scenario
+        self.motion: EgoMotion = ego_motion(scenario)
+        self.imu_acceleration, self.imu_angular_velocity = imu(scenario.ego)
+
+    def capture(self, frame: int) -> SensorFrame:
+        world, scenario, seconds = self.world, self.world.scenario, dict.fromkeys(STAGES, 0.0)
+        ego = scenario.ego
+        ego_to_world = self.motion.ego_to_world(frame)
+        world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+        world.set_time(frame)
+        views: list[CameraFrame] = []
+        jpeg: dict[str, bytes] = {}
+        for camera in self.rig.cameras:
+            with _timed(seconds, "render"):
+                view = render(world, camera, ego_to_world, mask=True)
+            with _timed(seconds, "post_process"):
+                seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{camera.name}".encode())
+                rgb = post_process(
+                    view.rgb,
+                    view.depth_m,
+                    scenario.conditions,
+                    world.lighting,
+                    seed,
+                    headlights=camera.name == "CAM_FRONT",
+                )
+            with _timed(seconds, "jpeg"):
+                jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
+            views.append(view)
+        with _timed(seconds, "lidar"):
+            lidar_to_world = ego_to_world @ self.rig.lidar.sensor_to_ego
+            sweep = lidar.sweep(
+                world.client, self.rig.lidar, lidar_to_world, world.twin.segmentation
+            )
+        with _timed(seconds, "radar"):
+            velocity = np.array([ego.vx_mps[frame], ego.vy_mps[frame]])
+            returns = {
+                r.name: radar.detect(
+                    r,
+                    ego_to_world @ r.sensor_to_ego,
+                    velocity,
+                    list(scenario.tracks),
+                    frame,
+                    ego.track_id,
+                )
+                for r in self.rig.radars
+            }
+        with _timed(seconds, "annotate"):
+            boxes = self._annotate(frame, ego_to_world, views, sweep, returns)
+        with _timed(seconds, "bev"):
+            world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), None)
+            world.set_time(frame)  # the top view shows the ego too
+            top = bev.top_view(world, ego_to_world, self.options.bev_size_px)
+            bev_jpeg = encode_jpeg(top, self.options.jpeg_quality)
+        gnss = enu_to_wgs84(ego_to_world[:3, 3], world.intersection_map.origin)[0]
+        return SensorFrame(
+            frame=frame,
+            t_ns=int(scenario.t_ns[frame]),
+            ego_to_world=ego_to_world,
+            jpeg=jpeg,
+            lidar=sweep,
+            radars=returns,
+            gnss_lat_lon_alt=gnss,
+            imu_acceleration_mps2=self.imu_acceleration[frame],
+            imu_angular_velocity_radps=self.imu_angular_velocity[frame],
+            boxes=boxes,
+            signals={s.signal_id: s.state_at(frame) for s in scenario.signals},
+            bev_jpeg=bev_jpeg,
+            seconds=seconds,
+        )
+
+    def _annotate(
+        self,
+        frame: int,
+        ego_to_world: NDArray[np.float64],
+        views: list[CameraFrame],
+        sweep: lidar.LidarSweep,
+        returns: dict[str, radar.RadarReturns],
+    ) -> tuple[BoxAnnotation, ...]:
+        world, scenario = self.world, self.world.scenario
+        world_to_ego = np.linalg.inv(ego_to_world)
+        ego_yaw = float(self.motion.yaw_rad[frame])
+        bodies, counts = np.unique(sweep.body, return_counts=True)
+        lidar_counts = dict(zip(bodies.tolist(), counts.tolist(), strict=True))
+        radar_counts: dict[str, int] = {}
+        for result in returns.values():
+            for track_id in result.track_ids:
+                radar_counts[track_id] = radar_counts.get(track_id, 0) + 1
+        boxes = []
+        for track in scenario.tracks:
+            if track.track_id == scenario.ego_id or not track.valid[frame]:
+                continue
+            centre_xy = np.array([track.x_m[frame], track.y_m[frame]])
+            if np.hypot(*(centre_xy - ego_to_world[:2, 3])) > ANNOTATION_RANGE_M:
+                continue
+            blueprint = world.blueprints[track.track_id]
+            body = world.bodies[track.track_id]
+            size = np.array(blueprint.size_m)
+            corners = annotate.box_corners_3d(track, frame, blueprint.size_m)
+            shares = {
+                view.camera.name: annotate.visible_share(view, body, corners, ego_to_world)
+                for view in views
+            }
+            share = max(shares.values(), default=0.0)
+            centre_world = np.array([*centre_xy, corners[0, 2] + 0.5 * size[2]])
+            centre_ego = (world_to_ego @ np.append(centre_world, 1.0))[:3]
+            velocity = np.array([track.vx_mps[frame], track.vy_mps[frame]])
+            c, s = np.cos(ego_yaw), np.sin(ego_yaw)
+            boxes.append(
+                BoxAnnotation(
+                    track_id=track.track_id,
+                    category=track.agent_class.value,
+                    blueprint=blueprint.name,
+                    size_m=size,
+                    centre_world_m=centre_world,
+                    yaw_world_rad=float(track.yaw_rad[frame]),
+                    velocity_world_mps=velocity,
+                    centre_ego_m=centre_ego,
+                    yaw_ego_rad=float(
+                        np.arctan2(
+                            np.sin(track.yaw_rad[frame] - ego_yaw),
+                            np.cos(track.yaw_rad[frame] - ego_yaw),
+                        )
+                    ),
+                    velocity_ego_mps=np.array(
+                        [c * velocity[0] + s * velocity[1], -s * velocity[0] + c * velocity[1]]
+                    ),
+                    visibility=annotate.visibility_level(share),
+                    visible_share=share,
+                    cameras=tuple(name for name, value in shares.items() if value > 0.0),
+                    num_lidar_points=int(lidar_counts.get(body, 0)),
+                    num_radar_points=int(radar_counts.get(track.track_id, 0)),
+                )
+            )
+        return tuple(boxes)
+
+
+def configured_rig(options: SuiteOptions) -> Rig:
+    """The default rig with the options' cameras and image size."""
+    rig = default_rig()
+    cameras = rig.cameras
+    if options.cameras is not None:
+        known = {c.name for c in cameras}
+        unknown = [name for name in options.cameras if name not in known]
+        if unknown:
+            raise ValueError(f"unknown camera {unknown[0]!r}: expected some of {', '.join(known)}")
+        cameras = tuple(c for c in cameras if c.name in options.cameras)
+    if options.image_size is not None:
+        width, height = options.image_size
+        cameras = tuple(replace(c, width=width, height=height) for c in cameras)
+    return replace(rig, cameras=cameras)
+
+
+@contextmanager
+def _timed(seconds: dict[str, float], stage: str) -> Iterator[None]:
+    start = time.perf_counter()
+    yield
+    seconds[stage] += time.perf_counter() - start
