@@ -106,7 +106,7 @@ class LogReader:
         return {
             channel.topic: message
             for _, channel, _, message in self._reader.iter_decoded_messages(
-                topics=wanted, start_time=t, end_time=t + 1
+                topics=wanted, starting_at=t, ending_at=t
             )
         }
 

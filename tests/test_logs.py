@@ -1,0 +1,179 @@
+"""The MCAP contract: plain readers open a log, every topic at every frame, random access by
+frame, validation naming the gap, the future path read back equal to the scenario's."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from drivee2e_data import store
+from drivee2e_data.errors import LogFormatError
+from drivee2e_data.logs import topics
+from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.ego_state import ego_motion, future_path
+
+PLAIN_READER = r"""
+import json, sys
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+counts, schemas, times = {}, {}, {}
+with open(sys.argv[1], "rb") as stream:
+    reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+    for schema, channel, message, decoded in reader.iter_decoded_messages():
+        counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        schemas[channel.topic] = schema.name
+        times.setdefault(channel.topic, []).append(message.log_time)
+        if channel.topic == "/CAM_FRONT/image_compressed":
+            image = CompressedImage.FromString(message.data)
+            assert image.format == "jpeg" and image.data[:2] == b"\xff\xd8"
+        if channel.topic == "/LIDAR_TOP":
+            cloud = PointCloud.FromString(message.data)
+            lidar = ([f.name for f in cloud.fields], cloud.point_stride, len(cloud.data))
+        if channel.topic == "/ego/state":
+            ego_speed = decoded.speed
+    metadata = sorted(record.name for record in reader.iter_metadata())
+print(json.dumps({"counts": counts, "schemas": schemas, "times": times, "lidar": lidar,
+                  "metadata": metadata, "ego_speed": ego_speed,
+                  "project_code": any(m.startswith("drivee2e") for m in sys.modules)}))
+"""
+
+
+def _log(root: Path, index: int = 0) -> Path:
+    return sorted((root / "logs").glob("*.mcap"))[index]
+
+
+def test_a_log_opens_with_plain_mcap_and_foxglove_classes(collected_root: Path):
+    path = _log(collected_root)
+    output = subprocess.run(
+        [sys.executable, "-c", PLAIN_READER, str(path)], capture_output=True, text=True, check=True
+    )
+    found = json.loads(output.stdout)
+    assert not found["project_code"]
+    expected = set(topics.per_frame_topics())
+    assert set(found["counts"]) == expected | {topics.MAP}
+    frames = found["counts"][topics.EGO_STATE]
+    assert frames == 36
+    assert all(found["counts"][t] == frames for t in expected) and found["counts"]["/map"] == 1
+    frame_times = found["times"][topics.EGO_STATE]
+    assert all(found["times"][t] == frame_times for t in expected)  # one log_time per frame
+    assert np.all(np.diff(frame_times) == 100_000_000)  # 10 Hz
+    assert found["schemas"]["/CAM_BACK/image_compressed"] == "foxglove.CompressedImage"
+    assert found["schemas"]["/CAM_BACK/camera_info"] == "foxglove.CameraCalibration"
+    assert found["schemas"]["/RADAR_FRONT"] == "foxglove.PointCloud"
+    assert found["schemas"]["/tf"] == "foxglove.FrameTransforms"
+    assert found["schemas"]["/gnss"] == "foxglove.LocationFix"
+    assert found["schemas"]["/annotations/scene"] == "foxglove.SceneUpdate"
+    assert found["schemas"]["/annotations/objects"] == "drivee2e.ObjectAnnotations"
+    names, stride, size = found["lidar"]
+    assert names == ["x", "y", "z", "intensity", "ring"] and stride == 17
+    assert size % stride == 0 and size // stride > 30_000  # a full sweep hits the ground
+    assert found["ego_speed"] > 0
+    assert found["metadata"] == sorted(
+        [
+            topics.SCENARIO_METADATA,
+            topics.RIG_METADATA,
+            topics.COLLECTION_METADATA,
+            topics.FRAMES_METADATA,
+        ]
+    )
+
+
+def test_validation_passes_and_the_cli_lists_logs(collected_root: Path, capsys):
+    from drivee2e_data.cli import main
+
+    assert main(["logs", str(collected_root), "--validate"]) == 0
+    out = capsys.readouterr().out
+    assert "2 logs" in out and out.count("valid") == 2
+
+
+def _copy_without(source: Path, target: Path, topic: str, frame: int) -> None:
+    """Rewrite a log, leaving out `topic`'s message at `frame` (counted from the first)."""
+    with open(source, "rb") as stream, open(target, "wb") as out:
+        reader = make_reader(stream)
+        writer = Writer(out)
+        writer.start()
+        schemas, channels, times = {}, {}, []
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            if message.log_time not in times:
+                times.append(message.log_time)
+            if channel.topic == topic and times.index(message.log_time) == frame:
+                continue
+            writer.add_message(
+                channels[channel.id], message.log_time, message.data, message.publish_time
+            )
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        writer.finish()
+
+
+def test_a_missing_message_is_named_by_topic_and_frame(collected_root: Path, tmp_path: Path):
+    broken = tmp_path / "broken.mcap"
+    _copy_without(_log(collected_root, 1), broken, topics.LIDAR, 3)
+    with LogReader(broken) as log, pytest.raises(LogFormatError) as caught:
+        log.validate()
+    message = str(caught.value)
+    assert "broken.mcap" in message and "/LIDAR_TOP" in message and "frame 3" in message
+
+
+def test_a_truncated_log_is_refused_clearly(collected_root: Path, tmp_path: Path):
+    data = _log(collected_root, 1).read_bytes()
+    truncated = tmp_path / "cut.mcap"
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogFormatError, match=r"cut\.mcap"):
+        LogReader(truncated)
+
+
+def test_one_frame_is_read_without_reading_the_whole_file(collected_root: Path):
+    path = _log(collected_root)
+    io_counters = Path("/proc/self/io")
+    if not io_counters.exists():
+        pytest.skip("needs Linux /proc/self/io to count bytes read")
+
+    def bytes_read() -> int:
+        line = next(row for row in io_counters.read_text().splitlines() if row.startswith("rchar"))
+        return int(line.split()[1])
+
+    with LogReader(path) as log:
+        before = bytes_read()
+        messages = log.frame(20)
+        spent = bytes_read() - before
+        assert set(messages) == set(topics.per_frame_topics())
+        assert messages[topics.EGO_STATE].frame == 20
+    assert spent < path.stat().st_size / 3
+
+
+def test_future_path_read_from_the_log_equals_the_scenarios(collected_root: Path):
+    path = _log(collected_root)
+    with LogReader(path) as log:
+        scenario = store.read_scenario(collected_root, log.scenario_id)
+        motion = ego_motion(scenario)
+        for frame in (0, 3, 20):
+            from_log, mask = log.future_path(frame)
+            # the scenario's own path, cut where the log ends
+            x, y, yaw = (a[: log.num_frames] for a in (motion.x_m, motion.y_m, motion.yaw_rad))
+            expected, expected_mask = future_path(x, y, yaw, frame)
+            assert (mask == expected_mask).all()
+            assert np.allclose(from_log[mask], expected[mask], atol=1e-9)
+        assert log.future_path(0)[1].all()  # 36 frames hold frame 0's whole 3 s future
+        assert log.future_path(20)[1].tolist() == [True, True, True, False, False, False]
+        states = log.ego_states()
+    assert [s.frame for s in states] == list(range(36))
+    assert np.allclose([s.x for s in states], motion.x_m[:36])
+    assert [s.command for s in states] == motion.command[:36].tolist()
