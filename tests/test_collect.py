@@ -1,0 +1,191 @@
+"""The collector: crash safety and resume, determinism, failures reported, the frame index, and
+annotations that agree with the cameras' segmentation."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from conftest import SMALL_COLLECT, copy_clips
+from mcap.reader import make_reader
+
+from drivee2e_data import store
+from drivee2e_data.cli import main
+from drivee2e_data.logs.reader import validate
+from drivee2e_data.sensors import annotate
+from drivee2e_data.sensors.camera import render
+from drivee2e_data.sensors.suite import SensorSuite, SuiteOptions
+from drivee2e_data.sim.world import World
+
+
+def _payloads(path: Path) -> dict[tuple[str, int], bytes]:
+    with open(path, "rb") as stream:
+        return {
+            (channel.topic, message.log_time): message.data
+            for _, channel, message in make_reader(stream).iter_messages()
+        }
+
+
+def test_sigkill_mid_clip_then_rerun_completes_every_log(synthetic_root: Path, tmp_path: Path):
+    ids = store.scenario_ids(synthetic_root)[2:5]
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    command = [
+        sys.executable,
+        "-m",
+        "drivee2e_data.cli",
+        "collect",
+        str(root),
+        "--max-frames",
+        "8",
+        *SMALL_COLLECT,
+    ]
+    process = subprocess.Popen(
+        command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    logs = root / "logs"
+    deadline = time.monotonic() + 240
+    try:
+        # wait until the first log is finished and the second is being written
+        while time.monotonic() < deadline:
+            finished = sorted(logs.glob("*.mcap"))
+            partial = list(logs.glob(".*.partial"))
+            if len(finished) == 1 and partial and partial[0].stat().st_size > 0:
+                break
+            assert process.poll() is None, "the collector ended before it could be killed"
+            time.sleep(0.05)
+        else:
+            pytest.fail("the collector never got to its second clip")
+        time.sleep(0.5)  # a few frames into the second clip
+        os.killpg(process.pid, signal.SIGKILL)
+    finally:
+        process.wait()
+    finished = sorted(logs.glob("*.mcap"))
+    assert len(finished) == 1 and list(logs.glob(".*.partial"))  # the kill left a partial
+    first = finished[0]
+    before = (first.read_bytes(), first.stat().st_mtime_ns)
+
+    assert main(["collect", str(root), "--max-frames", "8", *SMALL_COLLECT]) == 0
+    logs_now = sorted(p.name for p in logs.iterdir() if not p.name.startswith(".collect"))
+    assert logs_now == sorted([f"{s}.mcap" for s in ids] + ["index.parquet"])  # no partials
+    assert (first.read_bytes(), first.stat().st_mtime_ns) == before
+    for scenario_id in ids:
+        assert validate(logs / f"{scenario_id}.mcap") == 8
+    index = pq.read_table(logs / "index.parquet").to_pydict()
+    assert len(index["frame"]) == 24 and sorted(set(index["scenario_id"])) == ids
+
+
+def test_same_clip_twice_gives_identical_payloads(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    scenario_id = store.scenario_ids(synthetic_root)[1]
+    again = copy_clips(synthetic_root, tmp_path / "again", [scenario_id])
+    assert main(["collect", str(again), "--max-frames", "6", *SMALL_COLLECT]) == 0
+    first = _payloads(collected_root / "logs" / f"{scenario_id}.mcap")
+    second = _payloads(again / "logs" / f"{scenario_id}.mcap")
+    assert first.keys() == second.keys()
+    different = [key for key in first if first[key] != second[key]]
+    assert different == []
+
+
+def test_rerun_skips_finished_logs(collected_root: Path, capsys):
+    logs = sorted((collected_root / "logs").glob("*.mcap"))
+    stamps = [(p.stat().st_mtime_ns, p.stat().st_size) for p in logs]
+    assert main(["collect", str(collected_root), *SMALL_COLLECT]) == 0
+    assert "0 clips collected, 2 already done, 0 failed" in capsys.readouterr().out
+    assert [(p.stat().st_mtime_ns, p.stat().st_size) for p in logs] == stamps
+
+
+def test_a_failing_clip_is_reported_and_the_others_finish(
+    synthetic_root: Path, tmp_path: Path, capsys
+):
+    good = store.scenario_ids(synthetic_root)[5]
+    root = copy_clips(synthetic_root, tmp_path / "data", [good])
+    scenario = store.read_scenario(root, good)
+    # an ego that leaves the clip half way: collection needs the ego at every frame
+    leaving = next(
+        t for t in scenario.tracks if t.agent_class.is_motor_vehicle and not t.valid.all()
+    )
+    broken = dataclasses.replace(scenario, scenario_id="broken_ego", ego_id=leaving.track_id)
+    store.write_scenario(root, broken)
+    assert main(["collect", str(root), "--max-frames", "3", *SMALL_COLLECT]) == 1
+    captured = capsys.readouterr()
+    assert "1 clips collected, 0 already done, 1 failed" in captured.out
+    assert "failed: broken_ego:" in captured.err and leaving.track_id in captured.err
+    assert sorted(p.name for p in (root / "logs").glob("*.mcap")) == [f"{good}.mcap"]
+    assert not list((root / "logs").glob(".*.partial"))
+
+
+@pytest.mark.parametrize(
+    ("arguments", "expected"),
+    [
+        (["--image-size", "12x5"], "at least 16x16"),
+        (["--image-size", "wide"], "expected WxH"),
+        (["--only", "no_such_clip"], "no scenario 'no_such_clip'"),
+    ],
+)
+def test_bad_collect_arguments_are_clear_errors(
+    collected_root: Path, arguments: list[str], expected: str, capsys
+):
+    try:
+        code = main(["collect", str(collected_root), *arguments])
+    except SystemExit as exit_:
+        code = exit_.code
+    assert code == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_index_rows_follow_the_scenario(collected_root: Path):
+    table = pq.read_table(collected_root / "logs" / "index.parquet").to_pylist()
+    assert len(table) == 36 + 6
+    first = next(row for row in table if row["frame"] == 0)
+    scenario = store.read_scenario(collected_root, first["scenario_id"])
+    assert first["t_ns"] == scenario.t_ns[0]
+    assert first["sub_scenario"] == scenario.behavior.sub_scenario.value
+    assert first["speed_mps"] == pytest.approx(scenario.ego.speed_mps[0])
+
+
+def test_boxes_seen_by_a_camera_are_in_its_image_and_mask(synthetic_root: Path):
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    scenario = store.read_scenario(synthetic_root, scenario_id)
+    with World(store.read_map(synthetic_root, scenario.map_id), scenario) as world:
+        suite = SensorSuite(world, SuiteOptions(image_size=(320, 180)))
+        frame = 30
+        captured = suite.capture(frame)
+        world.place_ego(
+            float(scenario.ego.x_m[frame]), float(scenario.ego.y_m[frame]), scenario.ego_id
+        )
+        world.set_time(frame)
+        views = {c.name: render(world, c, captured.ego_to_world) for c in suite.rig.cameras}
+        seen = [b for b in captured.boxes if b.cameras]
+        assert len(seen) >= 3
+        for box in seen:
+            body = world.bodies[box.track_id]
+            track = scenario.track(box.track_id)
+            corners = annotate.box_corners_3d(track, frame, tuple(box.size_m))
+            for name in box.cameras:
+                area = annotate.projected_area(views[name], corners, captured.ego_to_world)
+                assert not area.is_empty and area.area > 0
+                assert (views[name].mask == body).any()
+            assert box.visibility == annotate.visibility_level(box.visible_share) >= 1
+        unseen = [b for b in captured.boxes if not b.cameras]
+        assert all(b.visibility == 0 for b in unseen)
+        # LiDAR points counted in a box lie in it (the box grown by 2 cm for surface hits)
+        for box in captured.boxes:
+            if box.num_lidar_points == 0:
+                continue
+            body = world.bodies[box.track_id]
+            hits = captured.lidar.points_m[captured.lidar.body == body].astype(np.float64)
+            lidar_to_world = captured.ego_to_world @ suite.rig.lidar.sensor_to_ego
+            world_points = hits @ lidar_to_world[:3, :3].T + lidar_to_world[:3, 3]
+            grown = tuple(np.asarray(box.size_m) + 0.04)
+            corners = annotate.box_corners_3d(scenario.track(box.track_id), frame, grown)
+            corners[:, 2] -= 0.02
+            assert annotate.points_in_box(world_points, corners) == box.num_lidar_points
