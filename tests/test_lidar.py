@@ -72,7 +72,18 @@ def test_sweep_in_a_twin_sees_road_paint_and_agents(tmp_path):
             np.array([ego.x_m[frame], ego.y_m[frame], HEIGHT_M]),
         )
         kinds = world.twin.segmentation
-        result = sweep(world.client, default_rig().lidar, sensor_to_world, kinds)
+        result = sweep(
+            world.client, default_rig().lidar, sensor_to_world, kinds, world.twin.paint_raster()
+        )
     hit_kinds = {kinds.get(int(b), "agent") for b in result.body}
-    assert {"road", "road_mark", "agent"} <= hit_kinds
+    assert {"road", "agent"} <= hit_kinds
+    # markings are drawn only: their returns are road hits on painted cells, brighter
+    assert not {"road_mark", "crosswalk", "stop_line"} & hit_kinds
+    on_road = np.isin(result.body, [b for b, k in kinds.items() if k == "road"])
+    painted = result.intensity[on_road] == INTENSITY["road_mark"]
+    assert 0.002 < painted.mean() < 0.2
+    raster = world.twin.paint_raster()
+    crosswalk = world.intersection_map.crosswalks[0].polygon_m.mean(axis=0)
+    assert raster.kinds[raster.kind_codes(crosswalk[None])[0] - 1] == "crosswalk"
+    assert raster.kind_codes(np.array([[1e4, 1e4]]))[0] == 0  # off the raster: no paint
     assert len(result.points_m) > 50_000  # most downward beams return

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Lidar
+from drivee2e_data.sim.twin import PaintRaster
 
 MAX_RAYS_PER_BATCH = 16_000  # pybullet's rayTestBatch takes at most 16,383 rays per call
 # reflectivity per surface class (0..1); anything else is an agent
@@ -55,35 +56,51 @@ def beam_directions(lidar: Lidar) -> tuple[NDArray[np.float64], NDArray[np.uint8
 
 
 def sweep(
-    client: int, lidar: Lidar, sensor_to_world: NDArray[np.float64], kinds: dict[int, str]
+    client: int,
+    lidar: Lidar,
+    sensor_to_world: NDArray[np.float64],
+    kinds: dict[int, str],
+    paint: PaintRaster | None = None,
 ) -> LidarSweep:
-    """Cast one full sweep from the LiDAR at `sensor_to_world` (4x4); `kinds` names static bodies."""
+    """Cast one full sweep from the LiDAR at `sensor_to_world` (4x4). `kinds` names static
+    bodies (anything else is an agent); `paint` says where road hits land on markings, which
+    rays pass through as drawn-only bodies."""
     import pybullet
 
     directions, ring = beam_directions(lidar)
     origin = sensor_to_world[:3, 3]
     world_directions = directions @ sensor_to_world[:3, :3].T
-    ends = origin + lidar.range_m * world_directions
+    ends = (origin + lidar.range_m * world_directions).tolist()
+    starts = [origin.tolist()] * MAX_RAYS_PER_BATCH
     hits = []
     for start in range(0, len(directions), MAX_RAYS_PER_BATCH):
         stop = min(start + MAX_RAYS_PER_BATCH, len(directions))
         hits.extend(
-            pybullet.rayTestBatch(
-                [origin.tolist()] * (stop - start),
-                ends[start:stop].tolist(),
-                physicsClientId=client,
-            )
+            pybullet.rayTestBatch(starts[: stop - start], ends[start:stop], physicsClientId=client)
         )
-    body = np.array([h[0] for h in hits], dtype=np.int32)
-    fraction = np.array([h[2] for h in hits], dtype=np.float64)
+    body = np.fromiter((h[0] for h in hits), np.int32, len(hits))
+    fraction = np.fromiter((h[2] for h in hits), np.float64, len(hits))
     hit = body >= 0
-    distance = fraction[hit] * lidar.range_m
-    intensity = np.array(
-        [INTENSITY.get(kinds.get(int(b), ""), AGENT_INTENSITY) for b in body[hit]], np.float32
-    )
+    body, distance = body[hit], fraction[hit] * lidar.range_m
+    intensity = _intensity_table(kinds, int(body.max(initial=0)))[body]
+    if paint is not None:
+        road = np.isin(body, [b for b, kind in kinds.items() if kind == "road"])
+        xy = origin[:2] + world_directions[hit][road, :2] * distance[road, None]
+        codes = paint.kind_codes(xy)
+        painted = np.flatnonzero(road)[codes > 0]
+        marks = np.array([INTENSITY[kind] for kind in paint.kinds], np.float32)
+        intensity[painted] = marks[codes[codes > 0] - 1]
     return LidarSweep(
         points_m=(directions[hit] * distance[:, None]).astype(np.float32),
         intensity=intensity,
         ring=ring[hit],
-        body=body[hit],
+        body=body,
     )
+
+
+def _intensity_table(kinds: dict[int, str], largest_body: int) -> NDArray[np.float32]:
+    """Reflectivity indexed by body id: by surface kind for the twin's bodies, else an agent's."""
+    table = np.full(max(largest_body, *kinds, 0) + 1, AGENT_INTENSITY, np.float32)
+    for body, kind in kinds.items():
+        table[body] = INTENSITY.get(kind, AGENT_INTENSITY)
+    return table

@@ -89,23 +89,32 @@ def post_process(
     seed: int,
     headlights: bool = False,
 ) -> NDArray[np.uint8]:
-    """The weather and light of `conditions` applied to an image with its metric depth."""
+    """The weather and light of `conditions` applied to an image with its metric depth.
+
+    By day the work stays in 8 bits with OpenCV's fused operations (a 1600x900 image takes a
+    few milliseconds); night, with its gain, headlights and noise, goes through floats."""
+    import cv2
+
     visibility = VISIBILITY_M[conditions.weather]
     wet = conditions.weather in (Weather.RAIN, Weather.WET)
     if visibility is None and not wet and not light.night:
         return rgb  # clear air by day: the render as is
-    image = rgb.astype(np.float32)
     rng = np.random.default_rng(seed)
+    image = np.ascontiguousarray(rgb)
     if wet:
-        image[_below_horizon(depth_m)] *= WET_DARKENING
+        image = image.copy()
+        lower = image[image.shape[0] // 2 :]
+        surface = depth_m[image.shape[0] // 2 :] < 150.0  # road and ground, mostly
+        np.copyto(lower, cv2.convertScaleAbs(lower, alpha=WET_DARKENING), where=surface[..., None])
     if visibility is not None:
-        transmission = np.exp(np.minimum(depth_m, 1e4) * np.float32(-3.0 / visibility))[..., None]
-        fog = (FOG_RGB * (NIGHT_GAIN if light.night else 1.0)).astype(np.float32)
-        image -= fog
-        image *= transmission
-        image += fog  # fog + (image - fog) * transmission
+        transmission = np.exp(np.minimum(depth_m, 1e4) * np.float32(-3.0 / visibility))
+        fog_rgb = FOG_RGB * (NIGHT_GAIN if light.night else 1.0)
+        fog = np.empty_like(image)
+        fog[:] = np.round(fog_rgb).astype(np.uint8)
+        image = cv2.blendLinear(image, fog, transmission, 1.0 - transmission)
     if light.night:
-        image *= NIGHT_GAIN
+        night = image.astype(np.float32)
+        night *= NIGHT_GAIN
         if headlights:
             height, width = depth_m.shape
             columns = np.abs(np.arange(width) - width / 2) / (width / 2)
@@ -113,25 +122,19 @@ def post_process(
                 np.arange(height)[:, None] > height * 0.45
             )
             falloff = np.clip(1.0 - depth_m / HEADLIGHT_REACH_M, 0.0, 1.0) * cone
-            image *= (1.0 + 3.0 * falloff[..., None]).astype(np.float32)
-        noise = rng.standard_normal(image.shape, dtype=np.float32)
+            night *= (1.0 + 3.0 * falloff[..., None]).astype(np.float32)
+        noise = rng.standard_normal(night.shape, dtype=np.float32)
         noise *= NIGHT_NOISE_SIGMA
-        image += noise
+        night += noise
+        np.clip(night, 0, 255, out=night)
+        image = night.astype(np.uint8)
     if conditions.weather == Weather.RAIN:
         image = _rain(image, rng)
-    np.clip(image, 0, 255, out=image)
-    return image.astype(np.uint8)
+    return image
 
 
-def _below_horizon(depth_m: NDArray[np.float32]) -> NDArray[np.bool_]:
-    """Pixels of surfaces (finite depth) in the lower half of the image: road and ground, mostly."""
-    height = depth_m.shape[0]
-    lower = np.zeros(depth_m.shape, bool)
-    lower[height // 2 :] = True
-    return lower & (depth_m < 150.0)
-
-
-def _rain(image: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.float32]:
+def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
+    """Bright, slanted streaks blended over the image."""
     import cv2
 
     streaks = np.zeros(image.shape[:2], np.float32)
@@ -140,4 +143,6 @@ def _rain(image: NDArray[np.float32], rng: np.random.Generator) -> NDArray[np.fl
         x, y = int(rng.integers(width)), int(rng.integers(height))
         length = int(rng.integers(height // 30, height // 10))
         cv2.line(streaks, (x, y), (x + length // 6, y + length), 1.0, 1, cv2.LINE_AA)
-    return image * (1 - 0.35 * streaks[..., None]) + 220.0 * 0.35 * streaks[..., None]
+    streaks *= 0.35
+    bright = np.full_like(image, 220)
+    return cv2.blendLinear(image, bright, 1.0 - streaks, streaks)

@@ -30,6 +30,8 @@ WHITE_RGBA = (0.92, 0.92, 0.9, 1.0)
 YELLOW_RGBA = (0.95, 0.75, 0.1, 1.0)
 BUILDING_RGBA = (0.55, 0.55, 0.62, 1.0)
 GROUND_RGBA = (0.42, 0.5, 0.32, 1.0)
+PAINT_KINDS = ("road_mark", "crosswalk", "stop_line")
+PAINT_RASTER_M = 0.05  # cell size of the paint raster (lines are 0.15 m wide)
 GROUND_MARGIN_M = 150.0  # the ground reaches this far beyond the road's bounding box
 LAMP_ON = {
     SignalState.RED: (1.0, 0.05, 0.05, 1.0),
@@ -54,6 +56,17 @@ class Twin:
     bodies: list[int] = field(default_factory=list)
     lamps: dict[str, list[tuple[int, SignalState]]] = field(default_factory=dict)
     segmentation: dict[int, str] = field(default_factory=dict)  # body id -> element kind
+    # markings, drawn only: rays pass through them to the road, and `paint_raster` says
+    # which road points are painted (kind, area) in the order drawn
+    paint: list[tuple[str, shapely.Geometry]] = field(default_factory=list)
+    _raster: PaintRaster | None = None
+
+    def paint_raster(self) -> PaintRaster:
+        """The markings rasterised (built on first use, then kept)."""
+        if self._raster is None:
+            self._raster = rasterize_paint(self.paint)
+        return self._raster
+
     mesh_dir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="drivee2e_twin_")))
 
     def remove_files(self) -> None:
@@ -102,10 +115,12 @@ class TwinBuilder:
         self.p, self.client = pybullet, client
         self.twin = Twin(client)
 
-    def _mesh(self, vertices: NDArray, indices: NDArray, rgba: tuple) -> tuple[int, int]:
+    def _mesh(
+        self, vertices: NDArray, indices: NDArray, rgba: tuple, collide: bool = True
+    ) -> tuple[int, int]:
         """Visual and collision shapes of a mesh, through an OBJ file: pybullet's EGL renderer
         cannot take meshes given as vertex lists (it crashes); the collision shape (a static
-        triangle mesh) is what LiDAR and radar rays hit."""
+        triangle mesh) is what LiDAR rays hit. Without `collide` the collision shape is -1."""
         path = self.twin.mesh_dir / f"mesh_{len(self.twin.bodies):05d}.obj"
         lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices]
         lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(indices).reshape(-1, 3)]
@@ -113,10 +128,14 @@ class TwinBuilder:
         visual = self.p.createVisualShape(
             self.p.GEOM_MESH, fileName=str(path), rgbaColor=rgba, physicsClientId=self.client
         )
+        if not collide:
+            return visual, -1
         collision = self.p.createCollisionShape(
-            self.p.GEOM_MESH, fileName=str(path), flags=self.p.GEOM_FORCE_CONCAVE_TRIMESH,
+            self.p.GEOM_MESH,
+            fileName=str(path),
+            flags=self.p.GEOM_FORCE_CONCAVE_TRIMESH,
             physicsClientId=self.client,
-        )  # fmt: skip
+        )
         return visual, collision
 
     def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str) -> None:
@@ -124,7 +143,10 @@ class TwinBuilder:
         if len(indices) == 0:
             return
         vertices_3d = np.column_stack([vertices, np.full(len(vertices), z_m)])
-        visual, collision = self._mesh(vertices_3d, indices, rgba)
+        painted = kind in PAINT_KINDS
+        visual, collision = self._mesh(vertices_3d, indices, rgba, collide=not painted)
+        if painted:
+            self.twin.paint.append((kind, geometry))
         body = self.p.createMultiBody(0, collision, visual, [0, 0, 0], physicsClientId=self.client)
         self.twin.bodies.append(body)
         self.twin.segmentation[body] = kind
@@ -361,3 +383,50 @@ def _zebra(polygon_m: NDArray) -> shapely.Geometry:
 
 def build_twin(intersection_map: IntersectionMap, client: int) -> Twin:
     return TwinBuilder(client).build(intersection_map)
+
+
+@dataclass(frozen=True)
+class PaintRaster:
+    """Which kind of marking covers each 5 cm cell of the road (0: none, k: `kinds[k - 1]`)."""
+
+    origin_xy_m: NDArray[np.float64]  # world position of cell (0, 0)'s corner
+    cell_m: float
+    codes: NDArray[np.uint8]  # (rows along y, columns along x)
+    kinds: tuple[str, ...] = PAINT_KINDS
+
+    def kind_codes(self, xy_m: NDArray[np.float64]) -> NDArray[np.uint8]:
+        """(N,) marking code under each world point `(N, 2)`, 0 off the raster."""
+        cells = np.floor((np.asarray(xy_m) - self.origin_xy_m) / self.cell_m).astype(np.int64)
+        rows, columns = self.codes.shape
+        inside = (
+            (cells[:, 0] >= 0) & (cells[:, 0] < columns) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
+        )
+        result = np.zeros(len(cells), np.uint8)
+        result[inside] = self.codes[cells[inside, 1], cells[inside, 0]]
+        return result
+
+
+def rasterize_paint(paint: list[tuple[str, shapely.Geometry]]) -> PaintRaster:
+    """Markings (polygons, holes ignored: none of the twin's have any) to a `PaintRaster`."""
+    import cv2
+
+    if not paint:
+        return PaintRaster(np.zeros(2), PAINT_RASTER_M, np.zeros((1, 1), np.uint8))
+    x0, y0, x1, y1 = shapely.GeometryCollection([g for _, g in paint]).bounds
+    origin = np.array([x0, y0]) - PAINT_RASTER_M
+    shape = (
+        int(np.ceil((y1 - y0) / PAINT_RASTER_M)) + 3,
+        int(np.ceil((x1 - x0) / PAINT_RASTER_M)) + 3,
+    )
+    codes = np.zeros(shape, np.uint8)
+    for kind, geometry in paint:
+        outlines = [
+            np.round((np.asarray(polygon.exterior.coords) - origin) / PAINT_RASTER_M * 16).astype(
+                np.int32
+            )
+            for polygon in shapely.get_parts(geometry)
+            if isinstance(polygon, shapely.Polygon) and not polygon.is_empty
+        ]
+        if outlines:
+            cv2.fillPoly(codes, outlines, PAINT_KINDS.index(kind) + 1, cv2.LINE_8, shift=4)
+    return PaintRaster(origin, PAINT_RASTER_M, codes)

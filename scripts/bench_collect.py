@@ -1,0 +1,114 @@
+"""Collection speed, memory and log size for the whole sensor suite at full resolution, against
+a naive reference measured in the same run.
+
+    python scripts/bench_collect.py [--frames 40] [--workers 2] [--reference-frames 8]
+
+The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
+written under two scenario ids so that `--workers 2` has two jobs; each is collected for
+`--frames` frames with six 1600x900 cameras, the 64-channel LiDAR, five radars, the top view and
+annotations. The reference is the same suite in one process with pybullet's TinyRenderer (the
+naive pipeline), over `--reference-frames` frames. Prints frames/s of both and their ratio, the
+per-stage time per frame, peak memory per worker and megabytes of log per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from bench_render import four_way_clip
+from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.runner import CollectSummary, collect
+
+from drivee2e_data import store
+from drivee2e_data.sensors.suite import STAGES
+
+
+def run(root: Path, options: CollectOptions, workers: int) -> CollectSummary:
+    summary = collect(root, options, workers=workers)
+    failed = summary.of("failed")
+    if failed:
+        raise SystemExit(f"collection failed: {failed[0].scenario_id}: {failed[0].error}")
+    return summary
+
+
+def stage_table(summary: CollectSummary) -> dict[str, float]:
+    """Milliseconds per frame in each stage, summed over workers."""
+    frames = summary.frames
+    totals = dict.fromkeys((*STAGES, "write"), 0.0)
+    for result in summary.of("collected"):
+        for stage, seconds in result.stage_seconds.items():
+            totals[stage] += seconds
+    return {stage: 1000 * seconds / frames for stage, seconds in totals.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=40, help="frames per job")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--reference-frames", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
+        root = Path(folder) / "data"
+        store.write_map(root, intersection_map)
+        for suffix in ("a", "b"):
+            store.write_scenario(
+                root, dataclasses.replace(scenario, scenario_id=f"{scenario.scenario_id}_{suffix}")
+            )
+        print(
+            f"clip {scenario.scenario_id}: {len(scenario.tracks)} agents, "
+            f"{len(intersection_map.metadata['arms'])}-way, {args.frames} frames x 2 jobs"
+        )
+        ours_start = time.perf_counter()
+        ours = run(root, CollectOptions(max_frames=args.frames), args.workers)
+        ours_wall = time.perf_counter() - ours_start
+        reference_root = Path(folder) / "reference"
+        store.write_map(reference_root, intersection_map)
+        store.write_scenario(reference_root, scenario)
+        reference = run(
+            reference_root,
+            CollectOptions(renderer="tiny", max_frames=args.reference_frames),
+            workers=1,
+        )
+    collected = ours.of("collected")
+    ours_fps = ours.frames / ours_wall
+    reference_fps = reference.frames_per_second
+    peak_gib = max(r.peak_rss_bytes for r in collected) / 2**30
+    mb_per_frame = sum(r.log_bytes for r in collected) / ours.frames / 1e6
+    stages = stage_table(ours)
+    print(f"renderer: {collected[0].renderer}; workers: {args.workers}")
+    print(f"ours      {ours_fps:6.2f} frames/s  ({ours.frames} frames in {ours_wall:.1f} s)")
+    print(
+        f"reference {reference_fps:6.2f} frames/s  (one process, TinyRenderer, "
+        f"{reference.frames} frames)"
+    )
+    print(f"ratio     {ours_fps / reference_fps:6.2f}x")
+    print("per frame, ms (summed over workers):")
+    for stage, milliseconds in stages.items():
+        print(f"  {stage:<13} {milliseconds:7.1f}")
+    print(f"peak memory per worker: {peak_gib:.2f} GiB")
+    print(f"log size: {mb_per_frame:.2f} MB per frame")
+    if args.json:
+        args.json.write_text(
+            json.dumps(
+                {
+                    "frames_per_second": ours_fps,
+                    "reference_frames_per_second": reference_fps,
+                    "stages_ms_per_frame": stages,
+                    "peak_gib_per_worker": peak_gib,
+                    "mb_per_frame": mb_per_frame,
+                },
+                indent=1,
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
