@@ -64,7 +64,8 @@ def main() -> None:
             )
         print(
             f"clip {scenario.scenario_id}: {len(scenario.tracks)} agents, "
-            f"{len(intersection_map.metadata['arms'])}-way, {args.frames} frames x 2 jobs"
+            f"{len(intersection_map.metadata['arms'])}-way, {scenario.conditions.weather.value}, "
+            f"{scenario.conditions.time_of_day.value}; {args.frames} frames x 2 jobs"
         )
         ours_start = time.perf_counter()
         ours = run(root, CollectOptions(max_frames=args.frames), args.workers)

@@ -1,12 +1,23 @@
 #!/usr/bin/env bash
 # The main job on the embedded default: install, synthesise a small set of intersections and
-# staged clips, curate them (track quality, behaviour labels), and list them with the dataset's
-# distributions. Output goes to ./data (override with DATA=...).
+# staged clips, curate them (track quality, behaviour labels), collect expert data with the full
+# sensor suite into one MCAP log per clip, and print the summary. Output goes to ./data.
+#   DATA=...      data root (default data)
+#   CLIPS=N       clips to synthesise (default 4)
+#   FRAMES=N      frames collected per clip (default 50, 5 s); FRAMES=all for whole clips
+#   WORKERS=N     collector processes (default: the number of cores, at most 4)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install.sh
 DATA="${DATA:-data}"
-.venv/bin/drivee2e synth --out "$DATA" --clips "${CLIPS:-8}" --seed "${SEED:-0}"
+FRAMES="${FRAMES:-50}"
+CORES="$(getconf _NPROCESSORS_ONLN 2>/dev/null || echo 2)"
+WORKERS="${WORKERS:-$(( CORES < 4 ? CORES : 4 ))}"
+.venv/bin/drivee2e synth --out "$DATA" --clips "${CLIPS:-4}" --seed "${SEED:-0}"
 .venv/bin/drivee2e curate "$DATA" > "$DATA/curation.txt"
 echo "curation table: $DATA/curation.txt"
 .venv/bin/drivee2e scenarios "$DATA" --stats
+LIMIT=()
+if [ "$FRAMES" != "all" ]; then LIMIT=(--max-frames "$FRAMES"); fi
+.venv/bin/drivee2e collect "$DATA" --workers "$WORKERS" "${LIMIT[@]}"
+.venv/bin/drivee2e logs "$DATA" --validate
