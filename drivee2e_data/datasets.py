@@ -370,7 +370,7 @@ def write_view(
     import cv2
 
     from drivee2e_data.scenario import TimeOfDay, Weather
-    from drivee2e_data.sim.contact_sheet import contact_sheet
+    from drivee2e_data.sensors.contact_sheet import contact_sheet
     from drivee2e_data.sim.world import World
 
     scenario = store.read_scenario(root, scenario_id)

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import zlib
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data.sensors import bev
+from drivee2e_data.sensors.camera import render
+from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sensors.rig import default_rig
 from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
@@ -25,51 +29,44 @@ TOP_VIEW_HALF_WIDTH_M = 60.0
 
 
 def surround(
-    world: World, ego_xy_m: NDArray, ego_yaw_rad: float, frame: int = 0
+    world: World, ego_to_world: NDArray[np.float64], frame: int = 0
 ) -> list[tuple[str, NDArray[np.uint8]]]:
-    """The six views with the clip's weather and light applied."""
+    """The six views from the rig mounted at `ego_to_world` (rear axle), the clip's weather and
+    light applied."""
     width, height = TILE  # the cameras' 16:9, smaller
     rig = default_rig()
-    c, s_ = np.cos(ego_yaw_rad), np.sin(ego_yaw_rad)
-    ego_rotation = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
     views = []
     for name in SHEET_ORDER:
-        camera = rig.camera(name)
-        eye = np.array([ego_xy_m[0], ego_xy_m[1], 0.0]) + ego_rotation @ camera.sensor_to_ego[:3, 3]
-        target = eye + 10.0 * (ego_rotation @ camera.sensor_to_ego[:3, 2])
-        image = world.render(eye, target, width, height, camera.vertical_fov_deg)
+        camera = replace(rig.camera(name), width=width, height=height)
+        image = render(world, camera, ego_to_world, mask=False)
         seed = zlib.crc32(f"{world.scenario.scenario_id}/{frame}/{name}".encode())
-        rgb = post_process(image.rgb, image.depth_m, world.scenario.conditions, world.lighting, seed,
-                           headlights=name == "CAM_FRONT")  # fmt: skip
+        rgb = post_process(
+            image.rgb,
+            image.depth_m,
+            world.scenario.conditions,
+            world.lighting,
+            seed,
+            headlights=name == "CAM_FRONT",
+        )
         views.append((name, rgb))
     return views
 
 
-def top_view(world: World, centre_xy_m: NDArray, size_px: int) -> NDArray[np.uint8]:
-    altitude = 150.0
-    fov = float(np.rad2deg(2 * np.arctan(TOP_VIEW_HALF_WIDTH_M / altitude)))
-    eye = np.array([centre_xy_m[0], centre_xy_m[1], altitude])
-    target = np.array([centre_xy_m[0], centre_xy_m[1] + 1e-3, 0.0])
-    # a near plane close to the ground keeps depth precise enough for paint 5 mm above the road
-    return world.render(
-        eye, target, size_px, size_px, fov, far_m=altitude + 20.0, near_m=altitude - 60.0
-    ).rgb
-
-
 def contact_sheet(world: World, frame: int) -> NDArray[np.uint8]:
-    """(H, W, 3) RGB: the six views in two rows beside a square top view, each labelled."""
-
+    """(H, W, 3) RGB: the six views in two rows beside a square top view (ego heading up), each
+    labelled."""
     ego = world.scenario.ego
     if ego is None:
         raise ValueError(f"scenario {world.scenario.scenario_id!r} has no ego; run drivee2e curate")
-    xy = ego.xy_m[frame]
-    world.place_ego(float(xy[0]), float(xy[1]), ego.track_id)
+    ego_to_world = ego_motion(world.scenario).ego_to_world(frame)
+    x, y = float(ego.x_m[frame]), float(ego.y_m[frame])
+    world.place_ego(x, y, ego.track_id)
     world.set_time(frame)
-    tiles = surround(world, xy, float(ego.yaw_rad[frame]), frame)
-    world.place_ego(float(xy[0]), float(xy[1]), None)  # the top view shows the ego too
+    tiles = surround(world, ego_to_world, frame)
+    world.place_ego(x, y, None)  # the top view shows the ego too
     world.set_time(frame)
     width, height = TILE
-    top = top_view(world, xy, 2 * height)
+    top = bev.top_view(world, ego_to_world, 2 * height, TOP_VIEW_HALF_WIDTH_M)
     labelled = []
     for name, image in tiles:
         image = np.ascontiguousarray(image)
