@@ -1,7 +1,7 @@
 """Collection speed, memory and log size for the whole sensor suite at full resolution, against
 a naive reference measured in the same run.
 
-    python scripts/bench_collect.py [--frames 40] [--workers 2] [--reference-frames 8]
+    python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
 written under two scenario ids so that `--workers 2` has two jobs; each is collected for
@@ -48,7 +48,9 @@ def stage_table(summary: CollectSummary) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--frames", type=int, default=40, help="frames per job")
+    parser.add_argument(
+        "--frames", type=int, default=100, help="frames per job (clips are 150-250)"
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--reference-frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)

@@ -33,12 +33,8 @@ def render(
     image = world.render(
         eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask
     )
-    body_mask = None
-    if image.segmentation is not None:
-        body_mask = np.where(
-            image.segmentation >= 0, image.segmentation & ((1 << 24) - 1), -1
-        ).astype(np.int32)
-    return CameraFrame(camera, image.rgb, image.depth_m, body_mask)
+    # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
+    return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation)
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
@@ -46,7 +42,7 @@ def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
     import cv2
 
     ok, encoded = cv2.imencode(
-        ".jpg", np.ascontiguousarray(rgb[:, :, ::-1]), [cv2.IMWRITE_JPEG_QUALITY, quality]
+        ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]
     )
     if not ok:
         raise ValueError("JPEG encoding failed")
