@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Creates .venv and installs drivee2e-data with its test and plotting extras.
 # On a machine without a GPU the CPU build of torch goes in first, so pip does not pull a
-# multi-GB CUDA build. A GPU user sets TORCH_SPEC (for example "torch --index-url
+# multi-GB CUDA build. EXTRAS picks the optional extras (default dev,viz; the tests add ray).
+# A GPU user sets TORCH_SPEC (for example "torch --index-url
 # https://download.pytorch.org/whl/cu124") to choose the build instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -10,7 +11,7 @@ python3 -m venv .venv
 python -m pip install --quiet --upgrade pip
 # shellcheck disable=SC2086
 python -m pip install --quiet ${TORCH_SPEC:-torch==2.13.0}
-python -m pip install --quiet -e ".[dev,viz]"
+python -m pip install --quiet -e ".[${EXTRAS:-dev,viz}]"
 # The CommonRoad importer uses commonroad-io's XML reader only. commonroad-io pins
 # protobuf==3.20, which the MCAP stack cannot use, so it goes in without its own requirements
 # and with the ones its XML reader needs.

@@ -189,3 +189,20 @@ def test_boxes_seen_by_a_camera_are_in_its_image_and_mask(synthetic_root: Path):
             corners = annotate.box_corners_3d(scenario.track(box.track_id), frame, grown)
             corners[:, 2] -= 0.02
             assert annotate.points_in_box(world_points, corners) == box.num_lidar_points
+
+
+@pytest.mark.parametrize("backend", ["local", "ray"])
+def test_a_pool_of_workers_writes_the_same_payloads(
+    backend: str, collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    if backend == "ray":
+        pytest.importorskip("ray", reason="the Ray backend needs the ray extra")
+    ids = store.scenario_ids(synthetic_root)[:2]
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    arguments = ["collect", str(root), "--max-frames", "6", "--backend", backend, "--workers", "2"]
+    assert main([*arguments, *SMALL_COLLECT]) == 0
+    for scenario_id in ids:
+        pooled = _payloads(root / "logs" / f"{scenario_id}.mcap")
+        alone = _payloads(collected_root / "logs" / f"{scenario_id}.mcap")
+        assert pooled.items() <= alone.items()  # the first clip was collected longer alone
+        assert len({t for _, t in pooled}) == 6
