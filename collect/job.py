@@ -13,7 +13,7 @@ import resource
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivee2e_data import store
@@ -48,9 +48,6 @@ class JobResult:
     peak_rss_bytes: int = 0
     renderer: str = ""
     error: str | None = None
-
-    def as_dict(self) -> dict[str, object]:
-        return asdict(self)
 
 
 def log_path(root: Path, scenario_id: str) -> Path:

@@ -177,3 +177,22 @@ def test_future_path_read_from_the_log_equals_the_scenarios(collected_root: Path
     assert [s.frame for s in states] == list(range(36))
     assert np.allclose([s.x for s in states], motion.x_m[:36])
     assert [s.command for s in states] == motion.command[:36].tolist()
+
+
+def test_lidar_points_in_the_log_carry_rings_and_surface_intensities(collected_root: Path):
+    from drivee2e_data.logs.messages import LIDAR_DTYPE
+    from drivee2e_data.sensors.lidar import INTENSITY
+
+    with LogReader(_log(collected_root)) as log:
+        cloud = log.frame(10, [topics.LIDAR])[topics.LIDAR]
+        rig = log.rig["lidar"]["LIDAR_TOP"]
+    points = np.frombuffer(cloud.data, LIDAR_DTYPE)
+    xyz = np.stack([points["x"], points["y"], points["z"]], -1)
+    assert np.linalg.norm(xyz, axis=1).max() <= rig["range_m"] + 1e-3
+    assert points["ring"].max() <= rig["channels"] - 1
+    # ring k's beams leave at its elevation: +10 deg for ring 0 down to -30 deg for ring 63
+    elevation = np.degrees(np.arcsin(xyz[:, 2] / np.linalg.norm(xyz, axis=1)))
+    expected = np.linspace(10.0, -30.0, 64)[points["ring"]]
+    assert np.abs(elevation - expected).max() < 1e-3
+    values = set(np.unique(points["intensity"]).tolist())
+    assert {np.float32(INTENSITY[k]).item() for k in ("road", "road_mark")} <= values

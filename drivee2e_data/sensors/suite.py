@@ -113,7 +113,11 @@ class SensorSuite:
         with _timed(seconds, "lidar"):
             lidar_to_world = ego_to_world @ self.rig.lidar.sensor_to_ego
             sweep = lidar.sweep(
-                world.client, self.rig.lidar, lidar_to_world, world.twin.segmentation
+                world.client,
+                self.rig.lidar,
+                lidar_to_world,
+                world.twin.segmentation,
+                world.twin.paint_raster(),
             )
         with _timed(seconds, "radar"):
             velocity = np.array([ego.vx_mps[frame], ego.vy_mps[frame]])
