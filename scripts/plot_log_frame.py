@@ -20,16 +20,9 @@ from numpy.typing import NDArray
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.messages import LIDAR_DTYPE
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.contact_sheet import SHEET_ORDER
 
 TILE = (640, 360)
-SHEET_ORDER = (
-    "CAM_FRONT_LEFT",
-    "CAM_FRONT",
-    "CAM_FRONT_RIGHT",
-    "CAM_BACK_LEFT",
-    "CAM_BACK",
-    "CAM_BACK_RIGHT",
-)
 LIDAR_HALF_M, LIDAR_PX = 50.0, 720
 EDGES = [
     (0, 1),
