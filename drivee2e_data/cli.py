@@ -318,6 +318,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except DriveE2EError as error:
         print(f"drivee2e: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("drivee2e: interrupted; finished outputs are kept, rerun to resume", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -196,3 +196,48 @@ def test_lidar_points_in_the_log_carry_rings_and_surface_intensities(collected_r
     assert np.abs(elevation - expected).max() < 1e-3
     values = set(np.unique(points["intensity"]).tolist())
     assert {np.float32(INTENSITY[k]).item() for k in ("road", "road_mark")} <= values
+
+
+def _pose(transform) -> np.ndarray:  # type: ignore[no-untyped-def]
+    from drivee2e_data.geometry import rotation_from_quaternion
+
+    rotation = transform.rotation
+    matrix = np.eye(4)
+    matrix[:3, :3] = rotation_from_quaternion([rotation.w, rotation.x, rotation.y, rotation.z])
+    matrix[:3, 3] = (transform.translation.x, transform.translation.y, transform.translation.z)
+    return matrix
+
+
+def test_tf_puts_lidar_points_inside_the_boxes_that_count_them(collected_root: Path):
+    from drivee2e_data.logs.messages import LIDAR_DTYPE
+
+    with LogReader(_log(collected_root)) as log:
+        messages = log.frame(12, [topics.TF, topics.LIDAR, topics.OBJECTS])
+    poses = {
+        (t.parent_frame_id, t.child_frame_id): _pose(t) for t in messages[topics.TF].transforms
+    }
+    lidar_to_world = poses[("world", "ego")] @ poses[("ego", "LIDAR_TOP")]
+    points = np.frombuffer(messages[topics.LIDAR].data, LIDAR_DTYPE)
+    xyz = np.stack([points["x"], points["y"], points["z"]], -1).astype(np.float64)
+    world = xyz @ lidar_to_world[:3, :3].T + lidar_to_world[:3, 3]
+    counted = [o for o in messages[topics.OBJECTS].objects if o.num_lidar_points > 0]
+    assert len(counted) >= 3
+    for box in counted:
+        # the box's own frame: x along its heading, origin at its centre
+        c, s = np.cos(box.yaw), np.sin(box.yaw)
+        relative = world - (box.x, box.y, box.z)
+        local = np.stack(
+            [
+                c * relative[:, 0] + s * relative[:, 1],
+                -s * relative[:, 0] + c * relative[:, 1],
+                relative[:, 2],
+            ],
+            -1,
+        )
+        # hits lie on the box's faces: 2 mm of slack covers float32 points, and keeps out the
+        # road returns right beside a box that stands on the road
+        half = np.array([box.length, box.width, box.height]) / 2 + 0.002
+        inside = int(np.all(np.abs(local) <= half, axis=1).sum())
+        # a road return grazing a box's lower edge may fall within the slack: allow a couple
+        counted_here = box.num_lidar_points
+        assert counted_here <= inside <= counted_here + max(2, counted_here // 100), box.instance_id
