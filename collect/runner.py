@@ -12,6 +12,7 @@ import io
 import multiprocessing
 import os
 import queue
+import signal
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -19,6 +20,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -110,12 +112,17 @@ def collect(
                 pending.append(scenario_id)
         total = sum(_planned_frames(root, s, options) for s in pending)
         tick = progress(total, len(pending)) if progress else None
-        if backend == "ray":
-            summary.results.extend(_run_ray(root, pending, options, tick))
-        elif workers <= 1:
-            summary.results.extend(collect_clip(root, s, options, tick) for s in pending)
-        else:
-            summary.results.extend(_run_pool(root, pending, options, workers, tick))
+        try:
+            if backend == "ray":
+                summary.results.extend(_run_ray(root, pending, options, tick))
+            elif workers <= 1:
+                summary.results.extend(collect_clip(root, s, options, tick) for s in pending)
+            else:
+                summary.results.extend(_run_pool(root, pending, options, workers, tick))
+        except KeyboardInterrupt:
+            for partial in logs.glob(f".*{PARTIAL_SUFFIX}"):
+                partial.unlink()  # stopped workers' unfinished logs; finished ones stay
+            raise
         summary.wall_seconds = time.perf_counter() - start
         summary.index_rows = write_index(root)
     order = {s: i for i, s in enumerate(scenario_ids)}
@@ -136,6 +143,7 @@ def _init_worker(frames_done: multiprocessing.Queue) -> None:
     _frames_done = frames_done
     for name, value in WORKER_ENVIRONMENT.items():
         os.environ.setdefault(name, value)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
 
 
 def _pooled_clip(root: Path, scenario_id: str, options: CollectOptions) -> JobResult:
@@ -154,9 +162,10 @@ def _run_pool(
     context = multiprocessing.get_context("spawn")
     frames_done = context.Queue()
     results: list[JobResult] = []
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(frames_done,)
-    ) as pool:
+    )
+    try:
         futures: dict[Future, str] = {
             pool.submit(_pooled_clip, root, s, options): s for s in scenario_ids
         }
@@ -172,6 +181,13 @@ def _run_pool(
                         JobResult(futures[future], "failed", error="the worker process died")
                     )
         _drain(frames_done, tick)
+    except BaseException:
+        # Ctrl-C or an error here: stop the workers now rather than after every queued clip
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown()
     return results
 
 
@@ -203,6 +219,21 @@ def _run_ray(
     )
     pending = {remote_clip.remote(root, s, options): s for s in scenario_ids}
     results: list[JobResult] = []
+    try:
+        _gather_ray(ray, pending, results, tick)
+    except KeyboardInterrupt:
+        for reference in pending:
+            ray.cancel(reference, force=True)
+        raise
+    return results
+
+
+def _gather_ray(
+    ray: Any,
+    pending: dict[Any, str],
+    results: list[JobResult],
+    tick: Callable[[int], None] | None,
+) -> None:
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
         for reference in done:
@@ -214,7 +245,6 @@ def _run_ray(
             results.append(result)
             if tick is not None:
                 tick(result.frames)
-    return results
 
 
 def write_index(root: Path) -> int:

@@ -206,3 +206,40 @@ def test_a_pool_of_workers_writes_the_same_payloads(
         alone = _payloads(collected_root / "logs" / f"{scenario_id}.mcap")
         assert pooled.items() <= alone.items()  # the first clip was collected longer alone
         assert len({t for _, t in pooled}) == 6
+
+
+def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
+    synthetic_root: Path, tmp_path: Path
+):
+    ids = store.scenario_ids(synthetic_root)[6:10]
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    command = [
+        sys.executable,
+        "-m",
+        "drivee2e_data.cli",
+        "collect",
+        str(root),
+        "--workers",
+        "2",
+        "--max-frames",
+        "60",
+        *SMALL_COLLECT,
+    ]
+    process = subprocess.Popen(
+        command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    logs = root / "logs"
+    deadline = time.monotonic() + 240
+    while len(list(logs.glob(".*.partial"))) < 2 and time.monotonic() < deadline:
+        assert process.poll() is None, "the collector ended before it could be interrupted"
+        time.sleep(0.05)
+    os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+    try:
+        _, err = process.communicate(timeout=30)  # not after the four queued clips
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    assert process.returncode == 130
+    assert "interrupted" in err.decode() and "rerun to resume" in err.decode()
+    assert not list(logs.glob(".*.partial"))
+    assert len(list(logs.glob("*.mcap"))) < len(ids)
