@@ -106,8 +106,9 @@ def collect(
             stale.unlink()  # a crashed run's unfinished log; its clip is redone
         pending = []
         for scenario_id in scenario_ids:
-            if log_path(root, scenario_id).exists():
-                summary.results.append(collect_clip(root, scenario_id, options))  # skipped
+            path = log_path(root, scenario_id)
+            if path.exists():
+                summary.results.append(_existing(scenario_id, path))
             else:
                 pending.append(scenario_id)
         total = sum(_planned_frames(root, s, options) for s in pending)
@@ -128,6 +129,18 @@ def collect(
     order = {s: i for i, s in enumerate(scenario_ids)}
     summary.results.sort(key=lambda r: order[r.scenario_id])
     return summary
+
+
+def _existing(scenario_id: str, path: Path) -> JobResult:
+    """A log already under its final name is never rewritten: skipped when it reads as a
+    finished log, reported (and left for the user to delete) when it does not."""
+    try:
+        LogReader(path).close()
+    except LogFormatError as error:
+        return JobResult(
+            scenario_id, "failed", error=f"{error}; delete it to collect the clip again"
+        )
+    return JobResult(scenario_id, "skipped", log_bytes=path.stat().st_size)
 
 
 _frames_done: multiprocessing.Queue | None = None

@@ -243,3 +243,17 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     assert "interrupted" in err.decode() and "rerun to resume" in err.decode()
     assert not list(logs.glob(".*.partial"))
     assert len(list(logs.glob("*.mcap"))) < len(ids)
+
+
+def test_a_damaged_log_is_reported_not_skipped_nor_overwritten(
+    synthetic_root: Path, tmp_path: Path, capsys
+):
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    damaged = root / "logs" / f"{scenario_id}.mcap"
+    damaged.parent.mkdir(parents=True)
+    damaged.write_bytes(b"\x89MCAP0\r\n" + b"\0" * 100)  # a log cut short after its magic
+    assert main(["collect", str(root), "--max-frames", "2", *SMALL_COLLECT]) == 1
+    err = capsys.readouterr().err
+    assert f"failed: {scenario_id}:" in err and "delete it to collect the clip again" in err
+    assert damaged.read_bytes() == b"\x89MCAP0\r\n" + b"\0" * 100
