@@ -70,7 +70,10 @@ def _run_lock(logs: Path) -> Iterator[None]:
 
 
 def _planned_frames(root: Path, scenario_id: str, options: CollectOptions) -> int:
-    frames = store.read_scenario(root, scenario_id, require_map=False).num_frames
+    try:
+        frames = store.read_scenario(root, scenario_id, require_map=False).num_frames
+    except DriveE2EError:
+        return 0  # its job fails with the reason; the other clips go ahead
     return frames if options.max_frames is None else min(frames, options.max_frames)
 
 
@@ -271,8 +274,11 @@ def write_index(root: Path) -> int:
                 frames = list(log.frames)
         except LogFormatError:
             continue  # not ours to index; `drivee2e logs --validate` names what is wrong
-        scenario = store.read_scenario(root, path.stem, require_map=False)
-        motion = ego_motion(scenario)
+        try:
+            scenario = store.read_scenario(root, path.stem, require_map=False)
+            motion = ego_motion(scenario)
+        except (DriveE2EError, ValueError):
+            continue  # the log outlived or no longer matches its scenario: nothing to index
         behavior = scenario.behavior
         for frame in frames:
             columns["scenario_id"].append(scenario.scenario_id)

@@ -257,3 +257,15 @@ def test_a_damaged_log_is_reported_not_skipped_nor_overwritten(
     err = capsys.readouterr().err
     assert f"failed: {scenario_id}:" in err and "delete it to collect the clip again" in err
     assert damaged.read_bytes() == b"\x89MCAP0\r\n" + b"\0" * 100
+
+
+def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsys):
+    ids = store.scenario_ids(synthetic_root)[:2]
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    tracks = store.scenario_dir(root, ids[0]) / "tracks.parquet"
+    tracks.write_bytes(tracks.read_bytes()[:100])  # truncated
+    assert main(["collect", str(root), "--max-frames", "2", *SMALL_COLLECT]) == 1
+    captured = capsys.readouterr()
+    assert "1 clips collected, 0 already done, 1 failed" in captured.out
+    assert f"failed: {ids[0]}:" in captured.err and "tracks.parquet" in captured.err
+    assert [p.name for p in (root / "logs").glob("*.mcap")] == [f"{ids[1]}.mcap"]
