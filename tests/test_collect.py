@@ -34,35 +34,39 @@ def _payloads(path: Path) -> dict[tuple[str, int], bytes]:
         }
 
 
+def _start_collector(root: Path, arguments: list[str]) -> subprocess.Popen:
+    """`drivee2e collect` in a process group of its own, as a terminal would start it."""
+    command = [sys.executable, "-m", "drivee2e_data.cli", "collect", str(root), *arguments]
+    return subprocess.Popen(
+        [*command, *SMALL_COLLECT],
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+
+
+def _wait_until(condition, process: subprocess.Popen, seconds: float = 240) -> None:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert process.poll() is None, "the collector ended before the test could stop it"
+        assert time.monotonic() < deadline, "the collector never got there"
+        time.sleep(0.05)
+
+
 def test_sigkill_mid_clip_then_rerun_completes_every_log(synthetic_root: Path, tmp_path: Path):
     ids = store.scenario_ids(synthetic_root)[2:5]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
-    command = [
-        sys.executable,
-        "-m",
-        "drivee2e_data.cli",
-        "collect",
-        str(root),
-        "--max-frames",
-        "8",
-        *SMALL_COLLECT,
-    ]
-    process = subprocess.Popen(
-        command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
-    )
+    process = _start_collector(root, ["--max-frames", "8"])
     logs = root / "logs"
-    deadline = time.monotonic() + 240
+
+    def second_clip_begun() -> bool:
+        partial = list(logs.glob(".*.partial"))
+        return (
+            len(list(logs.glob("*.mcap"))) == 1 and bool(partial) and partial[0].stat().st_size > 0
+        )
+
     try:
-        # wait until the first log is finished and the second is being written
-        while time.monotonic() < deadline:
-            finished = sorted(logs.glob("*.mcap"))
-            partial = list(logs.glob(".*.partial"))
-            if len(finished) == 1 and partial and partial[0].stat().st_size > 0:
-                break
-            assert process.poll() is None, "the collector ended before it could be killed"
-            time.sleep(0.05)
-        else:
-            pytest.fail("the collector never got to its second clip")
+        _wait_until(second_clip_begun, process)
         time.sleep(0.5)  # a few frames into the second clip
         os.killpg(process.pid, signal.SIGKILL)
     finally:
@@ -213,26 +217,9 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
 ):
     ids = store.scenario_ids(synthetic_root)[6:10]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
-    command = [
-        sys.executable,
-        "-m",
-        "drivee2e_data.cli",
-        "collect",
-        str(root),
-        "--workers",
-        "2",
-        "--max-frames",
-        "60",
-        *SMALL_COLLECT,
-    ]
-    process = subprocess.Popen(
-        command, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
+    process = _start_collector(root, ["--workers", "2", "--max-frames", "60"])
     logs = root / "logs"
-    deadline = time.monotonic() + 240
-    while len(list(logs.glob(".*.partial"))) < 2 and time.monotonic() < deadline:
-        assert process.poll() is None, "the collector ended before it could be interrupted"
-        time.sleep(0.05)
+    _wait_until(lambda: len(list(logs.glob(".*.partial"))) == 2, process)
     os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     try:
         _, err = process.communicate(timeout=30)  # not after the four queued clips
