@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
+from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
 
 
@@ -35,6 +37,21 @@ def render(
     )
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation)
+
+
+def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.uint8]:
+    """The view's RGB under the clip's weather and light, its noise seeded by scenario, frame and
+    camera (the same image however often the frame is made); headlights on the front camera."""
+    scenario = world.scenario
+    seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{view.camera.name}".encode())
+    return post_process(
+        view.rgb,
+        view.depth_m,
+        scenario.conditions,
+        world.lighting,
+        seed,
+        headlights=view.camera.name == "CAM_FRONT",
+    )
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:

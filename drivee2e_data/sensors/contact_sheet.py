@@ -2,17 +2,15 @@
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors import bev
-from drivee2e_data.sensors.camera import render
+from drivee2e_data.sensors.camera import render, with_conditions
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sensors.rig import default_rig
-from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
 
 # the rig's cameras, in the order the sheet shows them (front row, back row)
@@ -39,15 +37,7 @@ def surround(
     for name in SHEET_ORDER:
         camera = replace(rig.camera(name), width=width, height=height)
         image = render(world, camera, ego_to_world, mask=False)
-        seed = zlib.crc32(f"{world.scenario.scenario_id}/{frame}/{name}".encode())
-        rgb = post_process(
-            image.rgb,
-            image.depth_m,
-            world.scenario.conditions,
-            world.lighting,
-            seed,
-            headlights=name == "CAM_FRONT",
-        )
+        rgb = with_conditions(world, image, frame)
         views.append((name, rgb))
     return views
 

@@ -9,7 +9,6 @@ stage is kept in `SensorFrame.seconds` for the collection benchmark.
 from __future__ import annotations
 
 import time
-import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
@@ -19,11 +18,10 @@ from numpy.typing import NDArray
 
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sensors import annotate, bev, lidar, radar
-from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render
+from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render, with_conditions
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sensors.imu_gnss import enu_to_wgs84, imu
 from drivee2e_data.sensors.rig import Rig, default_rig
-from drivee2e_data.sim.conditions import post_process
 from drivee2e_data.sim.world import World
 
 STAGES = ("render", "post_process", "jpeg", "lidar", "radar", "annotate", "bev")
@@ -98,15 +96,7 @@ class SensorSuite:
             with _timed(seconds, "render"):
                 view = render(world, camera, ego_to_world, mask=True)
             with _timed(seconds, "post_process"):
-                seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{camera.name}".encode())
-                rgb = post_process(
-                    view.rgb,
-                    view.depth_m,
-                    scenario.conditions,
-                    world.lighting,
-                    seed,
-                    headlights=camera.name == "CAM_FRONT",
-                )
+                rgb = with_conditions(world, view, frame)
             with _timed(seconds, "jpeg"):
                 jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
             views.append(view)
