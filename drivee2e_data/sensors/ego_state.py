@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.scenario import FRAME_PERIOD_NS, Scenario, Track
+from drivee2e_data.scenario import Scenario, Track
+from drivee2e_data.sensors.imu_gnss import imu
 
 REAR_AXLE_SHARE = 0.3  # the rear axle sits 0.3 lengths behind the box centre
 WHEELBASE_SHARE = 0.6  # wheelbase of a car, as a share of its length
@@ -88,7 +89,6 @@ def ego_motion(scenario: Scenario) -> EgoMotion:
 
 
 def _motion(t_ns: NDArray[np.int64], ego: Track) -> EgoMotion:
-    dt = FRAME_PERIOD_NS / 1e9
     yaw = np.unwrap(ego.yaw_rad)
     heading = np.stack([np.cos(yaw), np.sin(yaw)], -1)
     length = float(np.median(ego.length_m))
@@ -96,8 +96,9 @@ def _motion(t_ns: NDArray[np.int64], ego: Track) -> EgoMotion:
     xy = ego.xy_m - back * heading
     velocity = np.stack([ego.vx_mps, ego.vy_mps], -1)
     speed = np.hypot(velocity[:, 0], velocity[:, 1])
-    acceleration = np.sum(np.gradient(velocity, dt, axis=0) * heading, axis=1)
-    yaw_rate = np.gradient(yaw, dt) if len(yaw) > 1 else np.zeros(1)
+    # the IMU's own differences: longitudinal acceleration and yaw rate as the IMU reports them
+    vehicle_acceleration, angular_velocity = imu(ego)
+    acceleration, yaw_rate = vehicle_acceleration[:, 0], angular_velocity[:, 2]
     wheelbase = WHEELBASE_SHARE * length
     steer = np.where(
         speed > STEER_MIN_SPEED_MPS,
