@@ -233,11 +233,19 @@ def scene_boxes(t_ns: int, frame: SensorFrame) -> SceneUpdate:
     return update
 
 
-def traffic_lights(t_ns: int, frame: SensorFrame, intersection_map: IntersectionMap):  # type: ignore[no-untyped-def]
+def signal_lanes(intersection_map: IntersectionMap) -> dict[str, list[str]]:
+    """Lane ids by the signal that controls them."""
     lanes: dict[str, list[str]] = {}
     for lane in intersection_map.lanes:
         if lane.signal_id is not None:
             lanes.setdefault(lane.signal_id, []).append(lane.lane_id)
+    return lanes
+
+
+def traffic_lights(
+    t_ns: int, frame: SensorFrame, lanes: dict[str, list[str]]
+) -> schemas.TrafficLights:
+    """Every signal's state at the frame with the lanes it controls (`signal_lanes`)."""
     message = _stamp(schemas.TrafficLights(), t_ns)
     for signal_id, state in sorted(frame.signals.items()):
         message.lights.add(

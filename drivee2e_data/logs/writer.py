@@ -76,12 +76,8 @@ class LogWriter:
         collection: dict[str, str],
     ) -> None:
         self.path, self.partial = path, partial_path(path)
-        self.scenario, self.intersection_map, self.rig, self.motion = (
-            scenario,
-            intersection_map,
-            rig,
-            motion,
-        )
+        self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
+        self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
         self._writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
@@ -96,9 +92,8 @@ class LogWriter:
         self.sensors = {c.name: c.sensor_to_ego for c in rig.cameras}
         self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
         self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
-        self.frames = 0
-        self.t_ns: list[int] = []
-        self.first_frame: int | None = None
+        self.t_ns: list[int] = []  # of the frames written
+        self.first_frame = 0
 
     def write(self, frame: SensorFrame) -> None:
         """All topics of one frame, each with log time and publish time = the frame's time."""
@@ -107,7 +102,8 @@ class LogWriter:
         def put(topic: str, message: Any) -> None:
             self._writer.write_message(topic, message, log_time=t, publish_time=t)
 
-        if self.frames == 0:
+        if not self.t_ns:
+            self.first_frame = frame.frame
             put(topics.MAP, messages.map_scene(t, self.intersection_map))
         for camera in self.rig.cameras:
             put(
@@ -127,12 +123,9 @@ class LogWriter:
         put(topics.EGO_STATE, messages.ego_state(t, self.motion, frame.frame))
         put(topics.OBJECTS, messages.object_annotations(t, frame))
         put(topics.SCENE, messages.scene_boxes(t, frame))
-        put(topics.TRAFFIC_LIGHTS, messages.traffic_lights(t, frame, self.intersection_map))
+        put(topics.TRAFFIC_LIGHTS, messages.traffic_lights(t, frame, self.signal_lanes))
         put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
-        self.frames += 1
         self.t_ns.append(int(t))
-        if self.first_frame is None:
-            self.first_frame = frame.frame
 
     def finish(self) -> None:
         """The frame list, index and footer, flushed to disk, then the rename that makes the
@@ -140,8 +133,8 @@ class LogWriter:
         self._writer.add_metadata(
             topics.FRAMES_METADATA,
             {
-                "first_frame": str(self.first_frame or 0),
-                "count": str(self.frames),
+                "first_frame": str(self.first_frame),
+                "count": str(len(self.t_ns)),
                 "t_ns": json.dumps(self.t_ns),
             },
         )
