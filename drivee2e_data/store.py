@@ -152,13 +152,13 @@ def write_scenario(root: Path, scenario: Scenario) -> Path:
     return final
 
 
-def read_scenario(root: Path, scenario_id: str, *, require_map: bool = True) -> Scenario:
-    """Read and validate one bundle; with `require_map`, its map file must exist too."""
-    folder = scenario_dir(root, scenario_id)
-    if not folder.is_dir():
-        raise ScenarioFormatError(f"{folder}: no such scenario bundle")
-    meta_file = folder / "meta.json"
-    meta = _read_json(meta_file)
+def read_timeline(root: Path, scenario_id: str) -> tuple[int, int]:
+    """A bundle's first frame time (ns) and number of frames, from its meta.json alone."""
+    meta_file = scenario_dir(root, scenario_id) / "meta.json"
+    return _timeline(_read_json(meta_file), meta_file)
+
+
+def _timeline(meta: dict[str, Any], meta_file: Path) -> tuple[int, int]:
     _check_schema(meta_file, meta)
     timeline = _get(meta, "timeline", dict, meta_file)
     t0_ns = _get(timeline, "t0_ns", int, meta_file, "timeline.")
@@ -172,6 +172,17 @@ def read_scenario(root: Path, scenario_id: str, *, require_map: bool = True) -> 
         raise ScenarioFormatError(
             f"{meta_file}: timeline.period_ns is {period_ns}, expected {FRAME_PERIOD_NS} (10 Hz)"
         )
+    return t0_ns, num_frames
+
+
+def read_scenario(root: Path, scenario_id: str, *, require_map: bool = True) -> Scenario:
+    """Read and validate one bundle; with `require_map`, its map file must exist too."""
+    folder = scenario_dir(root, scenario_id)
+    if not folder.is_dir():
+        raise ScenarioFormatError(f"{folder}: no such scenario bundle")
+    meta_file = folder / "meta.json"
+    meta = _read_json(meta_file)
+    t0_ns, num_frames = _timeline(meta, meta_file)
     map_id = _get(meta, "map_id", str, meta_file)
     if require_map and not map_path(root, map_id).is_file():
         raise ScenarioFormatError(
