@@ -117,17 +117,15 @@ class LogReader:
     def future_path(self, frame: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
         """The ego's 2 Hz future over 3 s in its frame at `frame`, `(6, 2)`, and which steps the
         log has; read from the `/ego/state` of those frames only."""
+        self.time_of(frame)  # a frame outside the log is an IndexError naming the log
         steps = [frame + FUTURE_STRIDE_FRAMES * k for k in range(FUTURE_STEPS + 1)]
-        present = [s for s in steps if s in self.frames]
-        states = {s: self.frame(s, [topics.EGO_STATE])[topics.EGO_STATE] for s in present}
-        # positions by frame offset from `frame`; absent steps stay out of the arrays
-        offsets = np.array([s - frame for s in present])
-        x = np.full(offsets.max() + 1, np.nan)
-        y, yaw = x.copy(), x.copy()
-        for s, state in states.items():
-            x[s - frame], y[s - frame], yaw[s - frame] = state.x, state.y, state.yaw
-        path, mask = future_path(x, y, yaw, 0)
-        return path, mask
+        steps = [step for step in steps if step in self.frames]
+        # positions by frame offset from `frame`; only the steps are read, NaN between them
+        x, y, yaw = np.full((3, steps[-1] - frame + 1), np.nan)
+        for step in steps:
+            state = self.frame(step, [topics.EGO_STATE])[topics.EGO_STATE]
+            x[step - frame], y[step - frame], yaw[step - frame] = state.x, state.y, state.yaw
+        return future_path(x, y, yaw, 0)
 
     def validate(self) -> None:
         """Every per-frame topic once at every frame, `/map` once at the first, and the
