@@ -24,9 +24,9 @@ from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
-from drivee2e_data.collect.job import LOGS_FOLDER, CollectOptions, JobResult, collect_clip, log_path
 
 from drivee2e_data import store
+from drivee2e_data.collect.job import LOGS_FOLDER, CollectOptions, JobResult, collect_clip, log_path
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX

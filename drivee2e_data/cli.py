@@ -9,14 +9,14 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from drivee2e_data import __version__, datasets, figures
+from drivee2e_data import __version__, figures, pipeline, splits
 from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import BACKENDS
-from drivee2e_data.datasets import write_view
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sim.world import RENDERERS
 
@@ -57,9 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="number of distinct intersections (default: min(clips, 4))",
     )
+    synth.add_argument(
+        "--workers", type=_positive, default=1, help="processes generating clips (default 1)"
+    )
 
     importer = commands.add_parser("import", help="import real traffic and maps")
-    importer.add_argument("kind", choices=datasets.IMPORT_KINDS, help="source format")
+    importer.add_argument("kind", choices=pipeline.IMPORT_KINDS, help="source format")
     importer.add_argument("source", type=Path, help="file or folder to import")
     importer.add_argument("--out", type=Path, required=True, help="data root to write into")
     importer.add_argument(
@@ -111,6 +114,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-frames", type=_positive, default=None, help="only the first N frames of each clip"
     )
     collect.add_argument("--only", nargs="+", default=None, metavar="ID", help="these clips only")
+
+    split = commands.add_parser(
+        "split", help="2:1:1 train/val/test over whole clips, stratified by behaviour"
+    )
+    split.add_argument("data", type=Path, help="data root")
+    split.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    split.add_argument(
+        "--name", default="default", help="manifest name: DATA/splits/NAME.csv (default: default)"
+    )
 
     logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
     logs.add_argument("data", type=Path, help="data root")
@@ -193,12 +205,13 @@ def _logs(args: argparse.Namespace) -> int:
 
 def _synth(args: argparse.Namespace) -> int:
     with tqdm(total=args.clips, unit="clip", desc="synthesising", disable=None) as bar:
-        report = datasets.synthesize(
+        report = pipeline.synthesize(
             args.out,
             args.clips,
             args.seed,
             args.intersections,
             on_clip=lambda scenario_id, skipped: bar.update(1),
+            workers=args.workers,
         )
     print(
         f"{len(report.written)} clips written, {len(report.skipped)} already present, "
@@ -209,7 +222,7 @@ def _synth(args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     with tqdm(unit="clip", desc=f"importing {args.kind}", disable=None) as bar:
-        summary = datasets.import_source(
+        summary = pipeline.import_source(
             args.out, args.kind, args.source, args.clip_seconds, on_scenario=lambda _: bar.update(1)
         )
     print(
@@ -242,7 +255,7 @@ def _curate(args: argparse.Namespace) -> int:
     if not (args.data / "scenarios").is_dir():
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
     with tqdm(unit="clip", desc="curating", disable=None) as bar:
-        rows = datasets.curate(args.data, on_scenario=lambda _: bar.update(1))
+        rows = pipeline.curate(args.data, on_scenario=lambda _: bar.update(1))
     header = ("scenario", "ego", "ego from", "behaviour", "dropped", "repaired")
     table = [
         (
@@ -272,7 +285,7 @@ def _scenarios(args: argparse.Namespace) -> int:
     if not (args.data / "scenarios").is_dir():
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
     with tqdm(unit="scenario", desc="reading", leave=False, disable=None) as bar:
-        summaries = datasets.summarize(args.data, on_scenario=lambda _: bar.update(1))
+        summaries = pipeline.summarize(args.data, on_scenario=lambda _: bar.update(1))
     header = ("scenario", "map", "dur s", "agents", "ego", "behaviour", "weather", "time of day")
     rows = [
         (
@@ -290,7 +303,7 @@ def _scenarios(args: argparse.Namespace) -> int:
     _print_table(header, rows)
     print(f"{len(rows)} scenarios")
     if args.stats or args.plot:
-        stats = datasets.statistics(summaries)
+        stats = pipeline.statistics(summaries)
         if args.stats:
             for name, counts in stats.items():
                 print(f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
@@ -299,6 +312,14 @@ def _scenarios(args: argparse.Namespace) -> int:
                 stats, args.plot, title=f"{args.data.name}: {len(summaries)} clips"
             )
             print(f"wrote {args.plot}")
+    return 0
+
+
+def _split(args: argparse.Namespace) -> int:
+    path, rows = splits.split_root(args.data, args.name, args.seed)
+    table = splits.counts_table(rows)
+    _print_table(table[0], table[1:])
+    print(f"wrote {path}: {len(rows)} clips")
     return 0
 
 
@@ -312,6 +333,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "scenarios": _scenarios,
         "collect": _collect,
         "logs": _logs,
+        "split": _split,
     }
     try:
         return handlers[args.command](args)

@@ -158,6 +158,14 @@ def read_timeline(root: Path, scenario_id: str) -> tuple[int, int]:
     return _timeline(_read_json(meta_file), meta_file)
 
 
+def read_meta(root: Path, scenario_id: str) -> dict[str, Any]:
+    """A bundle's meta.json as a dict (schema version checked), without reading its tables."""
+    meta_file = scenario_dir(root, scenario_id) / "meta.json"
+    meta = _read_json(meta_file)
+    _check_schema(meta_file, meta)
+    return meta
+
+
 def _timeline(meta: dict[str, Any], meta_file: Path) -> tuple[int, int]:
     _check_schema(meta_file, meta)
     timeline = _get(meta, "timeline", dict, meta_file)

@@ -21,10 +21,10 @@ import time
 from pathlib import Path
 
 from bench_render import four_way_clip
-from drivee2e_data.collect.job import CollectOptions
-from drivee2e_data.collect.runner import CollectSummary, collect
 
 from drivee2e_data import store
+from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.runner import CollectSummary, collect
 from drivee2e_data.sensors.suite import STAGES
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivee2e_data import datasets, store
+from drivee2e_data import pipeline, store
 from drivee2e_data.sim.world import World
 
 WIDTH, HEIGHT, VERTICAL_FOV_DEG = 1600, 900, 42.0  # a 70-degree horizontal front camera
@@ -27,7 +27,7 @@ WIDTH, HEIGHT, VERTICAL_FOV_DEG = 1600, 900, 42.0  # a 70-degree horizontal fron
 def four_way_clip(seed: int, folder: Path) -> tuple:
     """The first synthetic clip of `seed` on a 4-way site with 40 or more agents."""
     for clips in range(1, 30):
-        datasets.synthesize(folder, clips=clips, seed=seed, intersections=clips)
+        pipeline.synthesize(folder, clips=clips, seed=seed, intersections=clips)
         scenario = store.read_scenario(folder, store.scenario_ids(folder)[-1])
         intersection_map = store.read_map(folder, scenario.map_id)
         if len(intersection_map.metadata["arms"]) == 4 and len(scenario.tracks) >= 40:

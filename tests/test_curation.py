@@ -7,7 +7,7 @@ import pytest
 from conftest import REALDATA
 from factories import straight_track
 
-from drivee2e_data import datasets, store
+from drivee2e_data import pipeline, store
 from drivee2e_data.cli import main
 from drivee2e_data.curation import behavior, ego, quality
 from drivee2e_data.scenario import AgentClass, BehaviorCategory, SubScenario
@@ -117,7 +117,7 @@ def test_ego_candidates_must_be_valid_throughout(synthetic_root: Path, synthetic
     )
     picked = ego.choose(
         {"a": SubScenario.STR, "b": SubScenario.IPC_LFT},
-        datasets.Counter({BehaviorCategory.STR: 3}),
+        pipeline.Counter({BehaviorCategory.STR: 3}),
     )
     assert picked == ("b", SubScenario.IPC_LFT)
 
@@ -155,10 +155,10 @@ REAL_LABELS = {
 @pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is absent")
 def test_real_samples_get_the_labels_checked_by_eye(tmp_path: Path):
     av2 = REALDATA / "argoverse2"
-    datasets.import_source(tmp_path, "av2", av2 / "sensor-log-7fab2350")
-    datasets.import_source(tmp_path, "av2", av2 / "forecasting-0a1e6f0a")
-    datasets.import_source(tmp_path, "commonroad", REALDATA / "commonroad")
-    rows = {r.scenario_id: r for r in datasets.curate(tmp_path)}
+    pipeline.import_source(tmp_path, "av2", av2 / "sensor-log-7fab2350")
+    pipeline.import_source(tmp_path, "av2", av2 / "forecasting-0a1e6f0a")
+    pipeline.import_source(tmp_path, "commonroad", REALDATA / "commonroad")
+    rows = {r.scenario_id: r for r in pipeline.curate(tmp_path)}
     for scenario_id, (ego_id, label) in REAL_LABELS.items():
         assert (rows[scenario_id].ego_id, rows[scenario_id].behavior) == (ego_id, label), (
             scenario_id

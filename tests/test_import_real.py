@@ -8,7 +8,7 @@ import pytest
 import shapely
 from conftest import REALDATA
 
-from drivee2e_data import datasets, store
+from drivee2e_data import pipeline, store
 from drivee2e_data.geometry import rotation_from_quaternion
 from drivee2e_data.scenario import AgentClass, SignalState
 from drivee2e_data.sources import argoverse2, commonroad, lanelet2, sind
@@ -175,7 +175,7 @@ def test_import_cli_writes_and_lists(tmp_path: Path, capsys):
     out = capsys.readouterr().out
     assert "vehicle: mapped to car (25)" in out and "dropped" in out
     assert main(["scenarios", str(tmp_path)]) == 0
-    assert datasets.summarize(tmp_path)[0].agents[AgentClass.CAR] == 25
+    assert pipeline.summarize(tmp_path)[0].agents[AgentClass.CAR] == 25
 
 
 def test_sind_vehicle_tracks_when_present(tmp_path: Path):

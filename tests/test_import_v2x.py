@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivee2e_data import datasets
+from drivee2e_data import pipeline
 from drivee2e_data.cli import main
 from drivee2e_data.errors import ScenarioFormatError
 from drivee2e_data.scenario import AgentClass, SignalState, SubScenario, TimeOfDay, Weather
@@ -195,7 +195,7 @@ def test_unknown_class_is_dropped_with_a_warning_and_counted(v2x_folder: Path):
     for row in rows[:30]:
         row["sub_type"] = "Hovercraft"
     write_csv(v2x_folder / "trajectories" / "scene_001.csv", rows)
-    summary = datasets.import_source(v2x_folder.parent / "out", "v2x-seq", v2x_folder)
+    summary = pipeline.import_source(v2x_folder.parent / "out", "v2x-seq", v2x_folder)
     assert summary.report.dropped["Hovercraft"][1] == 30
     assert any("row 2: sub_type 'Hovercraft' is unknown" in w for w in summary.report.warnings)
 
@@ -258,7 +258,7 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(
     damage(v2x_folder)
     out = tmp_path / "out"
     with pytest.raises(ScenarioFormatError, match=message):
-        datasets.import_source(out, "v2x-seq", v2x_folder)
+        pipeline.import_source(out, "v2x-seq", v2x_folder)
     assert main(["import", "v2x-seq", str(v2x_folder), "--out", str(out)]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and error[0].startswith("drivee2e: error: ")

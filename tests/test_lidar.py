@@ -56,10 +56,10 @@ def test_box_20m_ahead_and_ground_rings(scene):
 
 
 def test_sweep_in_a_twin_sees_road_paint_and_agents(tmp_path):
-    from drivee2e_data import datasets, store
+    from drivee2e_data import pipeline, store
     from drivee2e_data.sim.world import World
 
-    datasets.synthesize(tmp_path, clips=1, seed=3)
+    pipeline.synthesize(tmp_path, clips=1, seed=3)
     scenario = store.read_scenario(tmp_path, store.scenario_ids(tmp_path)[0])
     with World(store.read_map(tmp_path, scenario.map_id), scenario, renderer="tiny") as world:
         ego = scenario.ego

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivee2e_data import datasets, store
+from drivee2e_data import pipeline, store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
@@ -15,7 +15,7 @@ from drivee2e_data.sim.world import World, connect
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
     root = tmp_path_factory.mktemp("sim")
-    datasets.synthesize(root, clips=1, seed=3)
+    pipeline.synthesize(root, clips=1, seed=3)
     scenario = store.read_scenario(root, store.scenario_ids(root)[0])
     return store.read_map(root, scenario.map_id), scenario
 
@@ -136,7 +136,7 @@ def test_view_cli_writes_a_contact_sheet(tmp_path: Path, capsys):
 
     from drivee2e_data.cli import main
 
-    datasets.synthesize(tmp_path, clips=1, seed=3)
+    pipeline.synthesize(tmp_path, clips=1, seed=3)
     scenario_id = store.scenario_ids(tmp_path)[0]
     out = tmp_path / "sheet.png"
     assert (
@@ -220,7 +220,7 @@ def test_generated_buildings_keep_off_the_road_and_repeat():
 
 
 def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
-    datasets.synthesize(tmp_path, clips=3, seed=5, intersections=1)
+    pipeline.synthesize(tmp_path, clips=3, seed=5, intersections=1)
     scenarios = [store.read_scenario(tmp_path, i) for i in store.scenario_ids(tmp_path)]
     intersection_map = store.read_map(tmp_path, scenarios[0].map_id)
     with World(intersection_map, scenarios[0], renderer="tiny", draw_radius_m=1e6) as world:

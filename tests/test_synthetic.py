@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from drivee2e_data import datasets, store
+from drivee2e_data import pipeline, store
 from drivee2e_data.geometry import box_corners_2d, boxes_overlap
 from drivee2e_data.scenario import AgentClass, BehaviorCategory, SignalState
 from drivee2e_data.sources import synthetic
@@ -24,7 +24,7 @@ def _files(root: Path) -> dict[str, bytes]:
 
 def test_same_seed_gives_identical_files(synthetic_root: Path, tmp_path: Path):
     """The first three clips of the default set, made again in a fresh run, are byte-identical."""
-    datasets.synthesize(tmp_path / "again", clips=3, seed=0)
+    pipeline.synthesize(tmp_path / "again", clips=3, seed=0)
     again = _files(tmp_path / "again")
     assert again and all(name.endswith((".json", ".parquet")) for name in again)
     original = _files(synthetic_root)
@@ -33,7 +33,7 @@ def test_same_seed_gives_identical_files(synthetic_root: Path, tmp_path: Path):
 
 
 def test_other_seed_gives_other_files(synthetic_root: Path, tmp_path: Path):
-    datasets.synthesize(tmp_path / "seed1", clips=1, seed=1)
+    pipeline.synthesize(tmp_path / "seed1", clips=1, seed=1)
     seed1 = _files(tmp_path / "seed1")
     seed0 = _files(synthetic_root)
     tracks0 = seed0["scenarios/synth_s0_c0000/tracks.parquet"]
@@ -44,7 +44,7 @@ def test_other_seed_gives_other_files(synthetic_root: Path, tmp_path: Path):
 
 def test_rerun_skips_finished_clips(synthetic_root: Path):
     before = {p: p.stat().st_mtime_ns for p in synthetic_root.rglob("*.parquet")}
-    report = datasets.synthesize(synthetic_root, clips=2, seed=0)
+    report = pipeline.synthesize(synthetic_root, clips=2, seed=0)
     assert report.written == [] and len(report.skipped) == 2
     assert {p: p.stat().st_mtime_ns for p in synthetic_root.rglob("*.parquet")} == before
 
@@ -175,4 +175,4 @@ def test_pedestrians_step_onto_the_road_only_on_walk(synthetic_root: Path, synth
 @pytest.mark.parametrize("clips", [0, -1])
 def test_synthesize_rejects_bad_counts(tmp_path: Path, clips: int):
     with pytest.raises(ValueError, match="clips must be at least 1"):
-        datasets.synthesize(tmp_path, clips=clips, seed=0)
+        pipeline.synthesize(tmp_path, clips=clips, seed=0)

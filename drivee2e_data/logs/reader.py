@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -103,12 +103,25 @@ class LogReader:
         """Decoded messages of one frame, by topic (all topics unless `topic_names` is given)."""
         t = self.time_of(frame)
         wanted = None if topic_names is None else list(topic_names)
-        return {
-            channel.topic: message
-            for _, channel, _, message in self._reader.iter_decoded_messages(
-                topics=wanted, starting_at=t, ending_at=t
-            )
-        }
+        try:
+            return {
+                channel.topic: message
+                for _, channel, _, message in self._reader.iter_decoded_messages(
+                    topics=wanted, starting_at=t, ending_at=t
+                )
+            }
+        except (McapError, EOFError, ValueError) as error:
+            raise LogFormatError(
+                f"{self.path}: unreadable chunk at frame {frame} ({error})"
+            ) from None
+
+    def decoded_messages(self, topic_names: Iterable[str]) -> Iterator[tuple[Any, Any, Any, Any]]:
+        """Every message of these topics in log-time order: (schema, channel, message, decoded).
+        Reads only the chunks that hold these topics."""
+        try:
+            yield from self._reader.iter_decoded_messages(topics=list(topic_names))
+        except McapError as error:
+            raise LogFormatError(f"{self.path}: unreadable chunk ({error})") from None
 
     def ego_states(self) -> list[Any]:
         """Every frame's `/ego/state`, in frame order."""

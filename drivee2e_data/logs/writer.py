@@ -12,8 +12,10 @@ import os
 from pathlib import Path
 from typing import Any
 
+from mcap.well_known import MessageEncoding
 from mcap.writer import CompressionType
-from mcap_protobuf.writer import Writer
+from mcap.writer import Writer as McapWriter
+from mcap_protobuf.schema import register_schema
 
 from drivee2e_data import __version__, store
 from drivee2e_data.hdmap import IntersectionMap
@@ -23,7 +25,7 @@ from drivee2e_data.sensors.ego_state import EgoMotion
 from drivee2e_data.sensors.rig import Rig
 from drivee2e_data.sensors.suite import SensorFrame
 
-CHUNK_BYTES = 4 * 1024 * 1024
+CHUNK_BYTES = 4 * 1024 * 1024  # an upper bound: every frame ends its chunks (see `write`)
 PARTIAL_SUFFIX = ".partial"
 
 
@@ -80,7 +82,12 @@ class LogWriter:
         self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
-        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self._writer = McapWriter(
+            self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD
+        )
+        self._writer.start(profile="", library=f"drivee2e-data {__version__}")
+        self._channels: dict[str, int] = {}  # topic -> channel id
+        self._schemas: dict[str, int] = {}  # message type -> schema id
         self._writer.add_metadata(
             topics.SCENARIO_METADATA,
             {"meta": json.dumps(store.meta_document(scenario), sort_keys=True)},
@@ -96,27 +103,41 @@ class LogWriter:
         self.first_frame = 0
 
     def write(self, frame: SensorFrame) -> None:
-        """All topics of one frame, each with log time and publish time = the frame's time."""
+        """All topics of one frame, each with log time and publish time = the frame's time.
+
+        A frame is written as three chunks: the camera images, then the LiDAR and radar clouds,
+        then everything else. A reader that wants one kind (a training loader reading images,
+        an index reading ego states) then inflates only that chunk: the LiDAR is four fifths
+        of a frame's bytes and compresses, the JPEGs do not.
+        """
         t = frame.t_ns
 
         def put(topic: str, message: Any) -> None:
-            self._writer.write_message(topic, message, log_time=t, publish_time=t)
+            self._writer.add_message(
+                self._channel(topic, message),
+                log_time=t,
+                data=message.SerializeToString(),
+                publish_time=t,
+            )
 
-        if not self.t_ns:
-            self.first_frame = frame.frame
-            put(topics.MAP, messages.map_scene(t, self.intersection_map))
         for camera in self.rig.cameras:
             put(
                 topics.image_topic(camera.name),
                 messages.compressed_image(t, camera.name, frame.jpeg[camera.name]),
             )
-            put(topics.camera_info_topic(camera.name), messages.camera_calibration(t, camera))
+        self._writer.flush()
         put(topics.LIDAR, messages.lidar_cloud(t, self.rig.lidar.name, frame.lidar))
         for radar in self.rig.radars:
             put(
                 topics.radar_topic(radar.name),
                 messages.radar_cloud(t, radar.name, frame.radars[radar.name]),
             )
+        self._writer.flush()
+        if not self.t_ns:
+            self.first_frame = frame.frame
+            put(topics.MAP, messages.map_scene(t, self.intersection_map))
+        for camera in self.rig.cameras:
+            put(topics.camera_info_topic(camera.name), messages.camera_calibration(t, camera))
         put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
         put(topics.GNSS, messages.location_fix(t, frame, self.motion))
         put(topics.IMU, messages.imu_message(t, frame))
@@ -125,7 +146,21 @@ class LogWriter:
         put(topics.SCENE, messages.scene_boxes(t, frame))
         put(topics.TRAFFIC_LIGHTS, messages.traffic_lights(t, frame, self.signal_lanes))
         put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
+        self._writer.flush()
         self.t_ns.append(int(t))
+
+    def _channel(self, topic: str, message: Any) -> int:
+        """The topic's channel, registered with its message's schema on first use."""
+        if topic not in self._channels:
+            kind = type(message).DESCRIPTOR.full_name
+            if kind not in self._schemas:
+                self._schemas[kind] = register_schema(self._writer, type(message))
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic,
+                message_encoding=MessageEncoding.Protobuf,
+                schema_id=self._schemas[kind],
+            )
+        return self._channels[topic]
 
     def finish(self) -> None:
         """The frame list, index and footer, flushed to disk, then the rename that makes the

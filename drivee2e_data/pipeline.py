@@ -1,4 +1,4 @@
-"""Dataset-level jobs on a data root: synthesise a set of clips, summarise what a root holds.
+"""The pipeline's stages on a data root: synthesise a set of clips, import, curate, summarise.
 
 Each job is resumable: finished bundles are atomic folders, and a rerun with the same inputs
 skips them instead of redoing them.
@@ -9,7 +9,8 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,32 +52,59 @@ def synthesize(
     seed: int,
     intersections: int | None = None,
     on_clip: Callable[[str, bool], None] | None = None,
+    workers: int = 1,
 ) -> SynthReport:
-    """Write `clips` synthetic scenarios and their maps under `root`; `on_clip(id, skipped)`."""
+    """Write `clips` synthetic scenarios and their maps under `root`; `on_clip(id, skipped)`.
+
+    With `workers > 1` the clips are generated in that many processes; every clip depends only
+    on (seed, clip index), so the files are the same whatever the number of workers.
+    """
     if clips < 1:
         raise ValueError(f"clips must be at least 1, got {clips}")
     count = intersections or synthetic.default_intersections(clips)
     if count < 1:
         raise ValueError(f"intersections must be at least 1, got {count}")
-    sites: dict[int, synthetic.Site] = {}
+    maps = []
+    for site_index in range(min(count, clips)):
+        site = _synthetic_site(seed, site_index)
+        store.write_map(root, site.intersection_map)
+        maps.append(site.intersection_map.map_id)
+    jobs = [(Path(root), seed, clip_index % count, clip_index) for clip_index in range(clips)]
     written, skipped = [], []
-    for clip_index in range(clips):
-        site_index = clip_index % count
-        if site_index not in sites:
-            sites[site_index] = synthetic.make_site(seed, site_index)
-            store.write_map(root, sites[site_index].intersection_map)
-        scenario_id = synthetic.clip_id(seed, clip_index)
-        if _finished_synthetic(root, scenario_id, seed):
-            skipped.append(scenario_id)
-        else:
-            scenario = synthetic.generate_clip(sites[site_index], seed, clip_index)
-            store.write_scenario(root, scenario)
-            written.append(scenario_id)
-        if on_clip is not None:
-            on_clip(scenario_id, scenario_id in skipped)
-    return SynthReport(
-        written, skipped, sorted(site.intersection_map.map_id for site in sites.values())
-    )
+    if workers <= 1:
+        outcomes: Iterable[tuple[str, bool]] = (_synthesize_clip(*job) for job in jobs)
+        for scenario_id, was_skipped in outcomes:
+            (skipped if was_skipped else written).append(scenario_id)
+            if on_clip is not None:
+                on_clip(scenario_id, was_skipped)
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = [pool.submit(_synthesize_clip, *job) for job in jobs]
+            for future in as_completed(futures):
+                scenario_id, was_skipped = future.result()
+                (skipped if was_skipped else written).append(scenario_id)
+                if on_clip is not None:
+                    on_clip(scenario_id, was_skipped)
+    return SynthReport(sorted(written), sorted(skipped), sorted(maps))
+
+
+_sites: dict[tuple[int, int], synthetic.Site] = {}  # this process's sites, by (seed, index)
+
+
+def _synthetic_site(seed: int, site_index: int) -> synthetic.Site:
+    if (seed, site_index) not in _sites:
+        _sites[(seed, site_index)] = synthetic.make_site(seed, site_index)
+    return _sites[(seed, site_index)]
+
+
+def _synthesize_clip(root: Path, seed: int, site_index: int, clip_index: int) -> tuple[str, bool]:
+    """One clip written (or found finished): its id and whether it was skipped."""
+    scenario_id = synthetic.clip_id(seed, clip_index)
+    if _finished_synthetic(root, scenario_id, seed):
+        return scenario_id, True
+    scenario = synthetic.generate_clip(_synthetic_site(seed, site_index), seed, clip_index)
+    store.write_scenario(root, scenario)
+    return scenario_id, False
 
 
 @dataclass(frozen=True)

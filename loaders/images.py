@@ -1,0 +1,77 @@
+"""JPEG decoding for samples: on the CPU with OpenCV, at a reduced size straight from the DCT
+where the target size allows it (1/2, 1/4, 1/8), or a batch on the GPU with nvJPEG through
+torchvision. Images come out RGB, `(3, H, W)` uint8.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+# OpenCV decodes at 1/r of the full size without decoding the full image first
+_REDUCED = {
+    1: cv2.IMREAD_COLOR,
+    2: cv2.IMREAD_REDUCED_COLOR_2,
+    4: cv2.IMREAD_REDUCED_COLOR_4,
+    8: cv2.IMREAD_REDUCED_COLOR_8,
+}
+
+
+def reduction(full_size: tuple[int, int], target_size: tuple[int, int]) -> int:
+    """The largest JPEG reduction (8, 4, 2 or 1) whose result is still at least `target_size`
+    (width, height)."""
+    width, height = full_size
+    for factor in (8, 4, 2):
+        if width // factor >= target_size[0] and height // factor >= target_size[1]:
+            return factor
+    return 1
+
+
+def decode_cpu(
+    jpeg: bytes | NDArray[np.uint8],
+    full_size: tuple[int, int],
+    target_size: tuple[int, int] | None = None,
+) -> NDArray[np.uint8]:
+    """One JPEG as a contiguous RGB array `(3, H, W)` at `target_size` (width, height)."""
+    target = target_size or full_size
+    buffer = np.frombuffer(jpeg, np.uint8)
+    image = cv2.imdecode(buffer, _REDUCED[reduction(full_size, target)])
+    if image is None:
+        raise ValueError("not a decodable JPEG")
+    if (image.shape[1], image.shape[0]) != target:
+        image = cv2.resize(image, target, interpolation=cv2.INTER_AREA)
+    rgb = np.empty((3, target[1], target[0]), np.uint8)
+    for channel in range(3):  # BGR -> planar RGB in one pass, no intermediate copy
+        rgb[channel] = image[:, :, 2 - channel]
+    return rgb
+
+
+def decode_batch(
+    jpegs: Sequence[torch.Tensor],
+    full_size: tuple[int, int],
+    target_size: tuple[int, int] | None = None,
+    device: str | torch.device = "cpu",
+) -> torch.Tensor:
+    """Decode JPEGs (1-D uint8 tensors) into `(len, 3, H, W)` uint8 on `device`: nvJPEG through
+    torchvision on a CUDA device, OpenCV otherwise."""
+    device = torch.device(device)
+    target = target_size or full_size
+    if device.type != "cuda":
+        return torch.stack(
+            [torch.from_numpy(decode_cpu(j.numpy(), full_size, target)) for j in jpegs]
+        ).to(device)
+    try:
+        from torchvision.io import decode_jpeg
+        from torchvision.transforms.v2.functional import resize
+    except ImportError:
+        raise ImportError(
+            "decoding on the GPU needs torchvision built for this torch: pip install torchvision"
+        ) from None
+    images = decode_jpeg(list(jpegs), device=device)
+    if (images[0].shape[-1], images[0].shape[-2]) != target:
+        images = [resize(image, [target[1], target[0]], antialias=True) for image in images]
+    return torch.stack(images)
