@@ -3,23 +3,29 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from tqdm import tqdm
 
-from drivee2e_data import __version__, figures, pipeline, splits
+from drivee2e_data import __version__, figures, openloop, pipeline, splits, store
+from drivee2e_data.agents import admlp
+from drivee2e_data.agents.constant_velocity import ConstantVelocity
 from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import BACKENDS
 from drivee2e_data.errors import DriveE2EError, LogFormatError
+from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.metrics.openloop import CONVENTIONS
 from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sim.world import RENDERERS
 
+PLANNERS = ("constant-velocity", "admlp")
 CLASS_ABBREVIATION = {
     AgentClass.CAR: "car",
     AgentClass.VAN: "van",
@@ -124,10 +130,134 @@ def build_parser() -> argparse.ArgumentParser:
         "--name", default="default", help="manifest name: DATA/splits/NAME.csv (default: default)"
     )
 
+    train = commands.add_parser("train", help="train a baseline planner on a split")
+    train.add_argument("model", choices=("admlp",), help="which baseline")
+    train.add_argument("data", type=Path, help="data root (collected, split)")
+    _split_options(train, "train")
+    train.add_argument("--out", type=Path, required=True, help="checkpoint to write (resumes)")
+    train.add_argument("--epochs", type=_positive, default=60)
+    train.add_argument("--batch-size", type=_positive, default=64)
+    train.add_argument("--learning-rate", type=float, default=1e-3)
+    train.add_argument("--seed", type=int, default=0)
+
+    predict = commands.add_parser(
+        "predict", help="a baseline's plans for every sample of a split (predictions file)"
+    )
+    predict.add_argument("data", type=Path, help="data root")
+    _split_options(predict, "val")
+    predict.add_argument("--model", choices=PLANNERS, required=True)
+    predict.add_argument("--checkpoint", type=Path, help="the model's checkpoint (admlp)")
+    predict.add_argument("--out", type=Path, required=True, help="predictions Parquet to write")
+
+    openloop = commands.add_parser(
+        "openloop", help="score a predictions file: L2 and collision rate, per category"
+    )
+    openloop.add_argument("data", type=Path, help="data root")
+    _split_options(openloop, "val")
+    openloop.add_argument(
+        "--predictions", type=Path, required=True, help="Parquet (docs/loaders.md)"
+    )
+    openloop.add_argument("--convention", choices=CONVENTIONS, default="stp3")
+    openloop.add_argument("--json", type=Path, default=None, help="also save the table as JSON")
+
     logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
     logs.add_argument("data", type=Path, help="data root")
     logs.add_argument("--validate", action="store_true", help="check every topic at every frame")
     return parser
+
+
+def _split_options(parser: argparse.ArgumentParser, default: str) -> None:
+    parser.add_argument("--split", choices=(*splits.SPLITS, "all"), default=default)
+    parser.add_argument(
+        "--split-name", default="default", help="DATA/splits/NAME.csv, or a .csv path"
+    )
+
+
+def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
+    """The split's samples without sensor data: what planners of the ego's state and the
+    metrics read."""
+    return DriveE2EDataset(args.data, args.split, args.split_name, cameras=())
+
+
+def _train(args: argparse.Namespace) -> int:
+    dataset = _labels_only(args)
+    options = admlp.TrainOptions(args.epochs, args.batch_size, args.learning_rate, args.seed)
+    with (
+        tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,
+        tqdm(total=args.epochs, unit="epoch", desc="training admlp", disable=None) as epochs,
+    ):
+
+        def on_epoch(epoch: int, loss: float) -> None:
+            epochs.n = epoch
+            epochs.set_postfix(loss=f"{loss:.3f}")
+            epochs.refresh()
+
+        saved = admlp.train(dataset, args.out, options, on_epoch, reading.update)
+    print(
+        f"admlp: {saved['samples']} samples, {saved['epoch']} epochs, final L1 loss "
+        f"{saved['losses'][-1]:.3f} m; wrote {args.out}"
+    )
+    return 0
+
+
+def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    if args.model == "admlp":
+        if args.checkpoint is None:
+            raise DriveE2EError(
+                "--model admlp needs --checkpoint (drivee2e train admlp writes one)"
+            )
+        return admlp.load(args.checkpoint)
+    return ConstantVelocity()
+
+
+def _predict(args: argparse.Namespace) -> int:
+    planner = _planner(args)
+    dataset = _labels_only(args)
+    with tqdm(
+        total=len(dataset), unit="sample", desc=f"planning ({args.model})", disable=None
+    ) as bar:
+        table = openloop.predict(dataset, planner, bar.update)
+    openloop.write_predictions(args.out, table)
+    print(f"wrote {args.out}: {table.num_rows} plans for split {args.split}")
+    return 0
+
+
+def _openloop(args: argparse.Namespace) -> int:
+    dataset = _labels_only(args)
+    plans = openloop.read_predictions(args.predictions, dataset)
+    with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
+        results = openloop.score(dataset, plans, args.convention, bar.update)
+    keys = (
+        "l2_1s",
+        "l2_2s",
+        "l2_3s",
+        "l2_avg",
+        "collision_1s",
+        "collision_2s",
+        "collision_3s",
+        "collision_avg",
+    )
+    header = ("category", "samples", *(k.replace("collision", "col") for k in keys))
+    rows = [
+        (name, str(values["samples"]), *(_cell(values.get(k), k) for k in keys))
+        for name, values in results.items()
+    ]
+    print(
+        f"open-loop, {args.convention} convention, split {args.split}: {len(plans)} of {len(dataset)} samples planned"
+    )
+    _print_table(header, rows)
+    if args.json is not None:
+        document = {"convention": args.convention, "split": args.split, "results": results}
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        store.write_bytes_atomic(args.json, json.dumps(document, indent=2).encode())
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _cell(value: float | None, key: str) -> str:
+    if value is None or value != value:
+        return "-"
+    return f"{100 * value:.2f}%" if key.startswith("collision") else f"{value:.2f}"
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -334,6 +464,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "collect": _collect,
         "logs": _logs,
         "split": _split,
+        "train": _train,
+        "predict": _predict,
+        "openloop": _openloop,
     }
     try:
         return handlers[args.command](args)

@@ -1,0 +1,185 @@
+"""AD-MLP (after Zhai et al., "Rethinking the Open-Loop Evaluation of End-to-End Autonomous
+Driving in nuScenes"): an MLP from the ego's own state alone (its 2 Hz history, IMU, velocity,
+steering and the high-level command) to the planned waypoints. No camera, no map, no agents:
+the baseline that shows how much of open-loop L2 the ego's own motion explains.
+
+Training is resumable: the checkpoint is written atomically after every epoch with the
+optimiser state, and a rerun with the same output continues from the last finished epoch.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.loaders.collate import collate
+from drivee2e_data.loaders.dataset import DriveE2EDataset
+
+HIDDEN = 512
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    epochs: int = 60
+    batch_size: int = 64
+    learning_rate: float = 1e-3
+    seed: int = 0
+
+
+def features(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(B, F) the ego's history (positions and mask), status and command, as float32."""
+    history = batch["gt_ego_his_trajs"].float()
+    history_mask = batch["gt_ego_his_masks"].float()
+    return torch.cat(
+        [
+            history.flatten(1),
+            history_mask,
+            batch["ego_status"].float(),
+            batch["gt_ego_fut_cmd"].float(),
+        ],
+        dim=1,
+    )
+
+
+class ADMLP(nn.Module):
+    """Standardised features -> two hidden layers -> `steps` waypoints."""
+
+    name = "admlp"
+
+    def __init__(self, inputs: int, steps: int = 6) -> None:
+        super().__init__()
+        self.steps = steps
+        self.register_buffer("mean", torch.zeros(inputs))
+        self.register_buffer("scale", torch.ones(inputs))
+        self.layers = nn.Sequential(
+            nn.Linear(inputs, HIDDEN),
+            nn.ReLU(),
+            nn.Linear(HIDDEN, HIDDEN),
+            nn.ReLU(),
+            nn.Linear(HIDDEN, steps * 2),
+        )
+
+    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
+        return self.layers((inputs - self.mean) / self.scale).reshape(-1, self.steps, 2)
+
+    @torch.no_grad()
+    def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        self.eval()
+        return self(features(batch)).double()
+
+
+def extract(
+    dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
+) -> dict[str, torch.Tensor]:
+    """Features, targets and masks of every sample, in dataset order."""
+    rows: dict[str, list[torch.Tensor]] = {"x": [], "y": [], "mask": []}
+    for start in range(0, len(dataset), 256):
+        batch = collate([dataset[i] for i in range(start, min(start + 256, len(dataset)))])
+        rows["x"].append(features(batch))
+        rows["y"].append(batch["gt_ego_fut_trajs"].float())
+        rows["mask"].append(batch["gt_ego_fut_masks"])
+        if progress is not None:
+            progress(len(batch["ego_status"]))
+    return {key: torch.cat(value) for key, value in rows.items()}
+
+
+def train(
+    dataset: DriveE2EDataset,
+    checkpoint: Path,
+    options: TrainOptions = TrainOptions(),
+    on_epoch: Callable[[int, float], None] | None = None,
+    on_sample: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Train on every sample of `dataset` (built with `cameras=()`); returns the checkpoint."""
+    if len(dataset) == 0:
+        raise DriveE2EError(
+            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
+        )
+    data = extract(dataset, on_sample)
+    torch.manual_seed(options.seed)
+    model = ADMLP(data["x"].shape[1], data["y"].shape[1])
+    model.mean.copy_(data["x"].mean(0))
+    model.scale.copy_(data["x"].std(0).clamp_min(1e-3))
+    optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
+    state = {"epoch": 0, "losses": []}
+    if checkpoint.is_file():
+        saved = load_checkpoint(checkpoint)
+        if saved["options"] != asdict(options) or saved["samples"] != len(dataset):
+            raise DriveE2EError(
+                f"{checkpoint}: made with other options or data ({saved['options']}, "
+                f"{saved['samples']} samples); delete it or choose another --out"
+            )
+        model.load_state_dict(saved["model"])
+        optimiser.load_state_dict(saved["optimiser"])
+        state = {"epoch": saved["epoch"], "losses": saved["losses"]}
+    generator = torch.Generator().manual_seed(options.seed)
+    for epoch in range(options.epochs):
+        order = torch.randperm(len(data["x"]), generator=generator)  # drawn every epoch: resumable
+        if epoch < state["epoch"]:
+            continue
+        model.train()
+        total, count = 0.0, 0
+        for start in range(0, len(order), options.batch_size):
+            rows = order[start : start + options.batch_size]
+            mask = data["mask"][rows].float()[..., None]
+            error = (model(data["x"][rows]) - data["y"][rows]).abs() * mask
+            loss = error.sum() / mask.sum().clamp_min(1.0) / 2
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            total, count = total + loss.item() * len(rows), count + len(rows)
+        state["epoch"], state["losses"] = epoch + 1, [*state["losses"], total / count]
+        _save(checkpoint, model, optimiser, options, len(dataset), state)
+        if on_epoch is not None:
+            on_epoch(epoch + 1, total / count)
+    return load_checkpoint(checkpoint)
+
+
+def _save(
+    path: Path,
+    model: ADMLP,
+    optimiser: torch.optim.Optimizer,
+    options: TrainOptions,
+    samples: int,
+    state: dict[str, Any],
+) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    torch.save(
+        {
+            "kind": ADMLP.name,
+            "inputs": model.mean.shape[0],
+            "steps": model.steps,
+            "model": model.state_dict(),
+            "optimiser": optimiser.state_dict(),
+            "options": asdict(options),
+            "samples": samples,
+            **state,
+        },
+        partial,
+    )
+    os.replace(partial, path)
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as error:
+        raise DriveE2EError(f"{path}: not a readable checkpoint ({error})") from None
+    if not isinstance(saved, dict) or saved.get("kind") != ADMLP.name:
+        raise DriveE2EError(f"{path}: not an AD-MLP checkpoint (drivee2e train admlp writes one)")
+    return saved
+
+
+def load(path: Path) -> ADMLP:
+    saved = load_checkpoint(path)
+    model = ADMLP(saved["inputs"], saved["steps"])
+    model.load_state_dict(saved["model"])
+    return model

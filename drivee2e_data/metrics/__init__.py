@@ -1,0 +1,2 @@
+"""Benchmark metrics as pure functions over tensors: open-loop L2 and collision rate (and, later,
+closed-loop infractions and scores)."""

@@ -1,0 +1,189 @@
+"""Open-loop planning metrics (SPEC.md): L2 of the planned ego waypoints against the logged
+future, and the collision rate of the planned ego box against the logged agents' boxes.
+
+Plans are `(B, T, 2)` ego-frame waypoints (x forward, y left, rear axle) at 2 Hz, step k at
+(k + 1) * 0.5 s. Steps the log does not have (clip end) are masked out of every mean, never
+padded. Two conventions for L2 (and collision) at horizon h, both offered by name:
+
+- `stp3` (ST-P3, VAD): the mean over the steps up to h of the per-step means;
+- `uniad` (UniAD): the per-step mean at the step of h itself.
+
+Per-step means are taken over all samples that have that step, so the accumulated state is
+sums and counts per step, which add across batches, processes and devices.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+from torchmetrics import Metric
+
+STEP_S = 0.5
+HORIZONS_S = (1.0, 2.0, 3.0)
+CONVENTIONS = ("stp3", "uniad")
+
+
+def l2_per_step(plan: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """(B, T) Euclidean distance between planned and logged waypoints `(B, T, 2)`."""
+    return torch.linalg.vector_norm(plan.double() - truth.double(), dim=-1)
+
+
+def plan_boxes(
+    plan: torch.Tensor, size_m: torch.Tensor, rear_axle_to_centre_m: torch.Tensor
+) -> torch.Tensor:
+    """(B, T, 5) ego boxes x, y (centre), length, width, yaw along a plan `(B, T, 2)` of
+    rear-axle waypoints. Heading: the direction from the previous waypoint (the origin for the
+    first); kept from the step before where the plan barely moves."""
+    plan = plan.double()
+    previous = torch.cat([torch.zeros_like(plan[:, :1]), plan[:, :-1]], dim=1)
+    delta = plan - previous
+    yaw = torch.atan2(delta[..., 1], delta[..., 0])
+    still = torch.linalg.vector_norm(delta, dim=-1) < 0.05
+    for step in range(plan.shape[1]):  # a standing plan keeps the heading it had
+        before = yaw[:, step - 1] if step else torch.zeros_like(yaw[:, 0])
+        yaw[:, step] = torch.where(still[:, step], before, yaw[:, step])
+    offset = rear_axle_to_centre_m.double().reshape(-1, 1)
+    centre = plan + offset[..., None] * torch.stack([torch.cos(yaw), torch.sin(yaw)], dim=-1)
+    size = size_m.double().reshape(-1, 1, size_m.shape[-1])[..., :2].expand(-1, plan.shape[1], 2)
+    return torch.cat([centre, size, yaw[..., None]], dim=-1)
+
+
+def _corners(boxes: torch.Tensor) -> torch.Tensor:
+    """(..., 4, 2) corners of boxes (..., 5) x, y, length, width, yaw."""
+    x, y, length, width, yaw = boxes.unbind(-1)
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    signs = torch.tensor([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=boxes.dtype)
+    dx = signs[:, 0] * (length[..., None] / 2)
+    dy = signs[:, 1] * (width[..., None] / 2)
+    return torch.stack(
+        [
+            x[..., None] + dx * c[..., None] - dy * s[..., None],
+            y[..., None] + dx * s[..., None] + dy * c[..., None],
+        ],
+        dim=-1,
+    )
+
+
+def boxes_overlap(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
+    """Whether rotated rectangles (..., 5) overlap (separating-axis test; touching counts)."""
+    a, b = _corners(first.double()), _corners(second.double())
+    separated = torch.zeros(a.shape[:-2], dtype=torch.bool)
+    for corners in (a, b):
+        for edge in range(2):
+            axis = corners[..., edge + 1, :] - corners[..., edge, :]
+            axis = axis / torch.linalg.vector_norm(axis, dim=-1, keepdim=True).clamp_min(1e-12)
+            project_a = (a * axis[..., None, :]).sum(-1)
+            project_b = (b * axis[..., None, :]).sum(-1)
+            gap = (project_a.min(-1).values > project_b.max(-1).values) | (
+                project_b.min(-1).values > project_a.max(-1).values
+            )
+            separated |= gap
+    return ~separated
+
+
+def collisions(
+    plan: torch.Tensor,
+    size_m: torch.Tensor,
+    rear_axle_to_centre_m: torch.Tensor,
+    agent_boxes: torch.Tensor,
+    agent_masks: torch.Tensor,
+) -> torch.Tensor:
+    """(B, T) whether the planned ego box at each step overlaps any logged agent box at the same
+    step: `agent_boxes (B, M, T, 5)` in the current ego frame, `agent_masks (B, M, T)`."""
+    ego = plan_boxes(plan, size_m, rear_axle_to_centre_m)  # (B, T, 5)
+    if agent_boxes.shape[1] == 0:
+        return torch.zeros(plan.shape[:2], dtype=torch.bool)
+    hits = boxes_overlap(ego[:, None].expand_as(agent_boxes), agent_boxes)
+    return (hits & agent_masks.bool()).any(dim=1)
+
+
+def summarize(
+    sums: torch.Tensor, counts: torch.Tensor, convention: str, prefix: str
+) -> dict[str, float]:
+    """Values at 1 s, 2 s, 3 s, their mean (`avg`) and the paper's mean of 1 s and 2 s
+    (`avg_1_2s`), from per-step sums and counts."""
+    if convention not in CONVENTIONS:
+        raise ValueError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
+    steps = sums.shape[0]
+    per_step = [float(sums[k] / counts[k]) if counts[k] > 0 else math.nan for k in range(steps)]
+    result: dict[str, float] = {}
+    for horizon in HORIZONS_S:
+        last = round(horizon / STEP_S) - 1
+        if last >= steps:
+            continue
+        if convention == "uniad":
+            value = per_step[last]
+        else:
+            seen = [v for v in per_step[: last + 1] if not math.isnan(v)]
+            value = sum(seen) / len(seen) if seen else math.nan
+        result[f"{prefix}_{horizon:g}s"] = value
+    at = [result[f"{prefix}_{h:g}s"] for h in HORIZONS_S if f"{prefix}_{h:g}s" in result]
+    result[f"{prefix}_avg"] = sum(at) / len(at) if at else math.nan
+    result[f"{prefix}_avg_1_2s"] = sum(at[:2]) / len(at[:2]) if at else math.nan
+    return result
+
+
+class OpenLoopMetric(Metric):
+    """L2 and collision rate accumulated over batches (and, through torchmetrics' sync, over
+    processes and devices: every state is a sum).
+
+    `update(plan, truth, mask, size_m=None, rear_axle_to_centre_m=None, agent_boxes=None,
+    agent_masks=None)` takes a batch as `DriveE2EDataset` gives it: `gt_ego_fut_trajs`,
+    `gt_ego_fut_masks`, `ego_size`, `ego_rear_axle_to_centre`, `gt_agent_fut_boxes` with
+    `gt_agent_fut_masks & gt_boxes_mask[..., None]`. Without the agents only L2 is scored.
+    """
+
+    full_state_update = False
+
+    def __init__(self, steps: int = 6, convention: str = "stp3", **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if convention not in CONVENTIONS:
+            raise ValueError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
+        self.convention = convention
+        for name in ("l2_sum", "l2_count", "collision_sum", "collision_count"):
+            self.add_state(
+                name, default=torch.zeros(steps, dtype=torch.float64), dist_reduce_fx="sum"
+            )
+
+    def update(
+        self,
+        plan: torch.Tensor,
+        truth: torch.Tensor,
+        mask: torch.Tensor,
+        size_m: torch.Tensor | None = None,
+        rear_axle_to_centre_m: torch.Tensor | None = None,
+        agent_boxes: torch.Tensor | None = None,
+        agent_masks: torch.Tensor | None = None,
+    ) -> None:
+        if plan.shape != truth.shape or plan.shape[:2] != mask.shape:
+            raise ValueError(
+                f"plan {tuple(plan.shape)}, truth {tuple(truth.shape)} and mask "
+                f"{tuple(mask.shape)}: expected (B, T, 2), (B, T, 2) and (B, T)"
+            )
+        valid = mask.bool()
+        errors = l2_per_step(plan, truth)
+        self.l2_sum += torch.where(valid, errors, 0.0).sum(0).to(self.l2_sum)
+        self.l2_count += valid.sum(0).to(self.l2_count)
+        if agent_boxes is not None and agent_masks is not None:
+            if size_m is None or rear_axle_to_centre_m is None:
+                raise ValueError("collisions need the ego's size and rear-axle offset")
+            hits = collisions(
+                plan.cpu(),
+                size_m.cpu(),
+                rear_axle_to_centre_m.cpu(),
+                agent_boxes.cpu(),
+                agent_masks.cpu(),
+            )
+            hits = hits.to(valid.device) & valid
+            self.collision_sum += hits.sum(0).to(self.collision_sum)
+            self.collision_count += valid.sum(0).to(self.collision_count)
+
+    def compute(self) -> dict[str, float]:
+        result = summarize(self.l2_sum, self.l2_count, self.convention, "l2")
+        if float(self.collision_count.sum()) > 0:
+            result.update(
+                summarize(self.collision_sum, self.collision_count, self.convention, "collision")
+            )
+        return result
