@@ -17,6 +17,8 @@ from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import BACKENDS
 from drivee2e_data.errors import DriveE2EError, LogFormatError
+from drivee2e_data.export.infos import export_infos
+from drivee2e_data.export.nuscenes import export_nuscenes
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
@@ -160,6 +162,22 @@ def build_parser() -> argparse.ArgumentParser:
     openloop.add_argument("--convention", choices=CONVENTIONS, default="stp3")
     openloop.add_argument("--json", type=Path, default=None, help="also save the table as JSON")
 
+    export = commands.add_parser("export", help="write the nuScenes layout or VAD info pickles")
+    export.add_argument("format", choices=("nuscenes", "infos"))
+    export.add_argument("data", type=Path, help="data root (collected)")
+    export.add_argument(
+        "--out", type=Path, required=True, help="nuscenes: a new folder; infos: the .pkl to write"
+    )
+    export.add_argument("--version", dest="table_version", default="v1.0-drivee2e")
+    export.add_argument("--split", choices=(*splits.SPLITS, "all"), default="all")
+    export.add_argument("--split-name", default="default", help="DATA/splits/NAME.csv, or a .csv")
+    export.add_argument(
+        "--keyframe-every", type=_positive, default=5, help="frames per sample (5: 2 Hz)"
+    )
+    export.add_argument(
+        "--nuscenes", type=Path, default=None, help="infos: the nuscenes export the paths name"
+    )
+
     logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
     logs.add_argument("data", type=Path, help="data root")
     logs.add_argument("--validate", action="store_true", help="check every topic at every frame")
@@ -251,6 +269,40 @@ def _openloop(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         store.write_bytes_atomic(args.json, json.dumps(document, indent=2).encode())
         print(f"wrote {args.json}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    with tqdm(unit="sample", desc=f"exporting {args.format}", disable=None) as bar:
+        if args.format == "nuscenes":
+            summary = export_nuscenes(
+                args.data,
+                args.out,
+                args.table_version,
+                args.split,
+                args.split_name,
+                args.keyframe_every,
+                bar.update,
+            )
+            message = (
+                f"wrote {summary.out}: {summary.scenes} scenes, {summary.samples} samples, "
+                f"{summary.annotations} annotations ({args.table_version})"
+            )
+        else:
+            if args.nuscenes is None:
+                raise DriveE2EError("export infos needs --nuscenes ROOT (drivee2e export nuscenes)")
+            count = export_infos(
+                args.data,
+                args.out,
+                args.nuscenes,
+                args.table_version,
+                args.split,
+                args.split_name,
+                args.keyframe_every,
+                bar.update,
+            )
+            message = f"wrote {args.out}: {count} infos (split {args.split})"
+    print(message)
     return 0
 
 
@@ -467,6 +519,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "train": _train,
         "predict": _predict,
         "openloop": _openloop,
+        "export": _export,
     }
     try:
         return handlers[args.command](args)
