@@ -61,22 +61,49 @@ def controlled_rounding(
     sizes: dict[str, int], ratio: Sequence[int] = RATIO
 ) -> dict[str, list[int]]:
     """Per stratum, counts per split that are each the floor or ceiling of the stratum's exact
-    share and add up, over the strata, to `apportion(sum(sizes))`."""
+    share and add up, over the strata, to `apportion(sum(sizes))`.
+
+    After the floors, each stratum has a few clips left over and each split a few places
+    left; a stratum may give at most one of its clips to a split whose exact share it rounded
+    down. That is a bipartite flow, solved by augmenting paths (strata in name order, splits by
+    largest remainder first, so the result is deterministic)."""
+    parts = sum(ratio)
     totals = apportion(sum(sizes.values()), ratio)
-    counts = {name: [size * r // sum(ratio) for r in ratio] for name, size in sizes.items()}
+    counts = {name: [size * r // parts for r in ratio] for name, size in sizes.items()}
     demand = [totals[k] - sum(c[k] for c in counts.values()) for k in range(len(ratio))]
-    # strata with the most left over first; each gives its units to the splits that still
-    # need the most (one unit per split at most, so every count stays a floor or a ceiling)
-    leftover = {name: sizes[name] - sum(counts[name]) for name in sizes}
-    for name in sorted(sizes, key=lambda n: (-leftover[n], n)):
-        remainders = [sizes[name] * r / sum(ratio) - counts[name][k] for k, r in enumerate(ratio)]
-        splits = sorted(
-            (k for k in range(len(ratio)) if remainders[k] > 0),
-            key=lambda k: (-demand[k], -remainders[k], k),
+    options = {
+        name: sorted(
+            (k for k in range(len(ratio)) if sizes[name] * ratio[k] % parts),
+            key=lambda k: (-(sizes[name] * ratio[k] % parts), k),
         )
-        for k in splits[: leftover[name]]:
+        for name in sizes
+    }
+    given: dict[int, list[str]] = {k: [] for k in range(len(ratio))}  # split -> strata giving
+
+    def augment(name: str, visited: set[int], leaving: int | None = None) -> bool:
+        """Give one more unit of `name` to a split (moving it off `leaving`), shifting other
+        strata's units along a path when the split it wants is full."""
+        for k in options[name]:
+            if k == leaving or k in visited or name in given[k]:
+                continue
+            visited.add(k)
+            if len(given[k]) < demand[k]:
+                given[k].append(name)
+                return True
+            for other in list(given[k]):
+                if augment(other, visited, leaving=k):
+                    given[k].remove(other)
+                    given[k].append(name)
+                    return True
+        return False
+
+    for name in sorted(sizes):
+        for _ in range(sizes[name] - sum(counts[name])):
+            if not augment(name, set()):
+                raise AssertionError(f"no controlled rounding for {sizes}")  # cannot happen
+    for k, names in given.items():
+        for name in names:
             counts[name][k] += 1
-            demand[k] -= 1
     return counts
 
 

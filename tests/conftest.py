@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
 import pytest
 
-from drivee2e_data import store
+from drivee2e_data import splits, store
 from drivee2e_data.cli import main
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
@@ -63,4 +64,26 @@ def collected_root(synthetic_root: Path, tmp_path_factory: pytest.TempPathFactor
             ]
         )
         assert code == 0
+    return root
+
+
+@pytest.fixture(scope="session")
+def loader_root(
+    synthetic_root: Path, collected_root: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Path:
+    """Four collected clips (one per behaviour: STR 36 frames, LFT 6, RT 8, STP 8) in a 2:1:1
+    manifest `splits/default.csv`: train LFT + RT, val STP, test STR (the straight clip)."""
+    ids = store.scenario_ids(synthetic_root)[:4]
+    root = copy_clips(synthetic_root, tmp_path_factory.mktemp("loader") / "data", ids)
+    shutil.copytree(collected_root / "logs", root / "logs", ignore=shutil.ignore_patterns(".*"))
+    for scenario_id in ids[2:]:
+        code = main(
+            ["collect", str(root), "--only", scenario_id, "--max-frames", "8", *SMALL_COLLECT]
+        )
+        assert code == 0
+    assigned = dict(zip(ids, ("test", "train", "train", "val"), strict=True))
+    rows = [
+        dataclasses.replace(row, split=assigned[row.scenario_id]) for row in splits.clips_of(root)
+    ]
+    splits.write_manifest(splits.split_path(root, "default"), rows)
     return root
