@@ -4,6 +4,13 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 # the tests run the Ray backend too, on a local Ray
 EXTRAS=dev,viz,ray bash scripts/install.sh
+# The official nuscenes-devkit checks the nuScenes export; its pins (numpy<2, shapely 2.0) clash
+# with this package, so it gets an environment of its own.
+if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then
+    python3 -m venv .venv-nuscenes
+    .venv-nuscenes/bin/python -m pip install --quiet --upgrade pip
+    .venv-nuscenes/bin/python -m pip install --quiet "nuscenes-devkit==1.2.0"
+fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
 .venv/bin/python -m pytest -q

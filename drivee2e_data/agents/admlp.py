@@ -4,7 +4,8 @@ steering and the high-level command) to the planned waypoints. No camera, no map
 the baseline that shows how much of open-loop L2 the ego's own motion explains.
 
 Training is resumable: the checkpoint is written atomically after every epoch with the
-optimiser state, and a rerun with the same output continues from the last finished epoch.
+optimiser state, and a rerun with the same output continues from the last finished epoch (a
+larger `epochs` continues training; the result equals one uninterrupted run).
 """
 
 from __future__ import annotations
@@ -111,7 +112,10 @@ def train(
     state = {"epoch": 0, "losses": []}
     if checkpoint.is_file():
         saved = load_checkpoint(checkpoint)
-        if saved["options"] != asdict(options) or saved["samples"] != len(dataset):
+        same = {k: v for k, v in saved["options"].items() if k != "epochs"} == {
+            k: v for k, v in asdict(options).items() if k != "epochs"
+        }
+        if not same or saved["samples"] != len(dataset):
             raise DriveE2EError(
                 f"{checkpoint}: made with other options or data ({saved['options']}, "
                 f"{saved['samples']} samples); delete it or choose another --out"
@@ -119,6 +123,8 @@ def train(
         model.load_state_dict(saved["model"])
         optimiser.load_state_dict(saved["optimiser"])
         state = {"epoch": saved["epoch"], "losses": saved["losses"]}
+        if state["epoch"] >= options.epochs:
+            return saved
     generator = torch.Generator().manual_seed(options.seed)
     for epoch in range(options.epochs):
         order = torch.randperm(len(data["x"]), generator=generator)  # drawn every epoch: resumable
