@@ -278,16 +278,16 @@ class DriveE2EDataset(Dataset):
             )
             result["cam2ego"] = _f32(np.stack([cameras[c]["cam2ego"] for c in self.cameras]))
             result["lidar2img"] = _f32(np.stack([cameras[c]["lidar2img"] for c in self.cameras]))
-            jpegs = self._read(log, frame, [topics.image_topic(c) for c in self.cameras])
+            jpegs = self.jpegs(log, clip.scenario_id, frame)
             if self.decode == "none":
                 result["img_jpeg"] = [
-                    torch.frombuffer(bytearray(j.data), dtype=torch.uint8) for j in jpegs
+                    torch.frombuffer(bytearray(j), dtype=torch.uint8) for j in jpegs
                 ]
             else:
                 result["img"] = torch.from_numpy(
                     np.stack(
                         [
-                            decode_cpu(j.data, cameras[c]["full_size"], self.image_size)
+                            decode_cpu(j, cameras[c]["full_size"], self.image_size)
                             for c, j in zip(self.cameras, jpegs, strict=True)
                         ]
                     )
@@ -302,6 +302,11 @@ class DriveE2EDataset(Dataset):
         if self.with_radar:
             result["radar_points"] = torch.from_numpy(self._radar(log, frame, info))
         return result
+
+    def jpegs(self, log: LogReader, scenario_id: str, frame: int) -> list[bytes]:
+        """The frame's JPEG bytes in camera order (one chunk read from the log)."""
+        images = self._read(log, frame, [topics.image_topic(c) for c in self.cameras])
+        return [image.data for image in images]
 
     def _read(self, log: LogReader, frame: int, topic_names: list[str]) -> list[Any]:
         messages = log.frame(frame, topic_names)

@@ -176,3 +176,13 @@ def test_pedestrians_step_onto_the_road_only_on_walk(synthetic_root: Path, synth
 def test_synthesize_rejects_bad_counts(tmp_path: Path, clips: int):
     with pytest.raises(ValueError, match="clips must be at least 1"):
         pipeline.synthesize(tmp_path, clips=clips, seed=0)
+
+
+def test_a_target_the_site_cannot_stage_falls_back_to_the_next() -> None:
+    """Clip 91 of seed 0 targets COV-LFT on a site with no conflict to stage it (found making
+    the 800-clip benchmark set): it takes the next target instead of stopping the run."""
+    site = synthetic.make_site(0, 1)
+    scenario = synthetic.generate_clip(site, 0, 91)
+    assert synthetic.TARGET_ORDER[91 % len(synthetic.TARGET_ORDER)].value == "COV-LFT"
+    assert scenario.metadata["target_sub_scenario"] == "YLW-LFT"
+    assert scenario.behavior is not None

@@ -20,6 +20,9 @@ from typing import Any
 import torch
 from torchmetrics import Metric
 
+from drivee2e_data.geometry import box_corners_2d
+from drivee2e_data.geometry import boxes_overlap as geometry_overlap
+
 STEP_S = 0.5
 HORIZONS_S = (1.0, 2.0, 3.0)
 CONVENTIONS = ("stp3", "uniad")
@@ -50,37 +53,13 @@ def plan_boxes(
     return torch.cat([centre, size, yaw[..., None]], dim=-1)
 
 
-def _corners(boxes: torch.Tensor) -> torch.Tensor:
-    """(..., 4, 2) corners of boxes (..., 5) x, y, length, width, yaw."""
-    x, y, length, width, yaw = boxes.unbind(-1)
-    c, s = torch.cos(yaw), torch.sin(yaw)
-    signs = torch.tensor([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=boxes.dtype)
-    dx = signs[:, 0] * (length[..., None] / 2)
-    dy = signs[:, 1] * (width[..., None] / 2)
-    return torch.stack(
-        [
-            x[..., None] + dx * c[..., None] - dy * s[..., None],
-            y[..., None] + dx * s[..., None] + dy * c[..., None],
-        ],
-        dim=-1,
-    )
-
-
 def boxes_overlap(first: torch.Tensor, second: torch.Tensor) -> torch.Tensor:
-    """Whether rotated rectangles (..., 5) overlap (separating-axis test; touching counts)."""
-    a, b = _corners(first.double()), _corners(second.double())
-    separated = torch.zeros(a.shape[:-2], dtype=torch.bool)
-    for corners in (a, b):
-        for edge in range(2):
-            axis = corners[..., edge + 1, :] - corners[..., edge, :]
-            axis = axis / torch.linalg.vector_norm(axis, dim=-1, keepdim=True).clamp_min(1e-12)
-            project_a = (a * axis[..., None, :]).sum(-1)
-            project_b = (b * axis[..., None, :]).sum(-1)
-            gap = (project_a.min(-1).values > project_b.max(-1).values) | (
-                project_b.min(-1).values > project_a.max(-1).values
-            )
-            separated |= gap
-    return ~separated
+    """Whether rotated rectangles (..., 5) x, y, length, width, yaw overlap (separating axes,
+    `geometry.boxes_overlap`; touching counts as apart)."""
+    a, b = first.double().cpu().numpy(), second.double().cpu().numpy()
+    corners_a = box_corners_2d(a[..., :2], a[..., 4], a[..., 2], a[..., 3])
+    corners_b = box_corners_2d(b[..., :2], b[..., 4], b[..., 2], b[..., 3])
+    return torch.from_numpy(geometry_overlap(corners_a, corners_b))
 
 
 def collisions(
@@ -95,7 +74,7 @@ def collisions(
     ego = plan_boxes(plan, size_m, rear_axle_to_centre_m)  # (B, T, 5)
     if agent_boxes.shape[1] == 0:
         return torch.zeros(plan.shape[:2], dtype=torch.bool)
-    hits = boxes_overlap(ego[:, None].expand_as(agent_boxes), agent_boxes)
+    hits = boxes_overlap(ego[:, None], agent_boxes)
     return (hits & agent_masks.bool()).any(dim=1)
 
 

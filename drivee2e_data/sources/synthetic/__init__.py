@@ -31,7 +31,7 @@ from drivee2e_data.scenario import (
 from drivee2e_data.sources.synthetic.layout import Layout, generate_layout
 from drivee2e_data.sources.synthetic.paths import PathNetwork, build_network
 from drivee2e_data.sources.synthetic.signals import SignalPlan, make_plan
-from drivee2e_data.sources.synthetic.staging import StagedClip, stage_clip
+from drivee2e_data.sources.synthetic.staging import StagedClip, StagingError, stage_clip
 
 SOURCE_NAME = "synthetic"
 GENERATOR_VERSION = 1
@@ -85,8 +85,18 @@ def clip_id(seed: int, clip_index: int) -> str:
 def generate_clip(site: Site, seed: int, clip_index: int) -> Scenario:
     """Clip `clip_index` of the dataset with `seed`, staged on `site`."""
     rng = np.random.default_rng([seed, 2, clip_index])
-    target = TARGET_ORDER[clip_index % len(TARGET_ORDER)]
-    staged = stage_clip(site.layout, site.network, site.plan, target, rng)
+    first = clip_index % len(TARGET_ORDER)
+    # a site may offer no way to stage a target (no conflicting left turn on some layouts):
+    # the clip then takes the next target in the order, deterministically
+    for shift in range(len(TARGET_ORDER)):
+        target = TARGET_ORDER[(first + shift) % len(TARGET_ORDER)]
+        try:
+            staged = stage_clip(site.layout, site.network, site.plan, target, rng)
+            break
+        except StagingError:
+            continue
+    else:
+        raise StagingError(f"could not stage any target on {site.intersection_map.map_id}")
     conditions = _conditions(rng, site.intersection_map)
     return _scenario(clip_id(seed, clip_index), site, staged, conditions, seed)
 

@@ -106,6 +106,10 @@ def _arrival_windows(
     return candidates
 
 
+class StagingError(RuntimeError):
+    """No attempt could stage a clip for the target on this site."""
+
+
 def stage_clip(
     layout: Layout,
     network: PathNetwork,
@@ -123,7 +127,7 @@ def stage_clip(
         if attempt.observed == target:
             return attempt
     if last is None:
-        raise RuntimeError(
+        raise StagingError(
             f"could not stage any clip for {target.value} on {layout.intersection_map.map_id}"
         )
     return last
