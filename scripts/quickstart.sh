@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The main job on the embedded default: install, synthesise a small set of intersections and
 # staged clips, curate them (track quality, behaviour labels), collect expert data with the full
-# sensor suite into one MCAP log per clip, and print the summary. Output goes to ./data.
+# sensor suite into one MCAP log per clip, split the clips 2:1:1, and score two open-loop
+# baselines (constant velocity; AD-MLP trained on the train split) on the val split through the
+# torch data module. Output goes to ./data.
 #   DATA=...      data root (default data)
 #   CLIPS=N       clips to synthesise (default 4)
 #   FRAMES=N      frames collected per clip (default 50, 5 s); FRAMES=all for whole clips
@@ -21,3 +23,5 @@ LIMIT=()
 if [ "$FRAMES" != "all" ]; then LIMIT=(--max-frames "$FRAMES"); fi
 .venv/bin/drivee2e collect "$DATA" --workers "$WORKERS" "${LIMIT[@]}"
 .venv/bin/drivee2e logs "$DATA" --validate
+.venv/bin/drivee2e split "$DATA" --seed "${SEED:-0}"
+bash scripts/openloop_baselines.sh "$DATA" val

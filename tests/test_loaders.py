@@ -10,9 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import copy_clips
 from torch.utils.data import DataLoader
 
 from drivee2e_data import store
+from drivee2e_data.cli import main
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.loaders import (
     CLASSES,
@@ -308,3 +310,13 @@ def test_unknown_split_and_camera_are_refused(loader_root: Path) -> None:
         DriveE2EDataset(
             loader_root / "nothing", "train", split_name=str(loader_root / "splits" / "default.csv")
         )
+
+
+def test_committed_quickstart_manifest_is_what_split_makes(
+    synthetic_root: Path, tmp_path: Path
+) -> None:
+    committed = Path(__file__).resolve().parents[1] / "splits" / "quickstart.csv"
+    ids = [f"synth_s0_c{k:04d}" for k in range(4)]  # the quickstart's four clips
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    assert main(["split", str(root), "--seed", "0"]) == 0
+    assert (root / "splits" / "default.csv").read_bytes() == committed.read_bytes()

@@ -24,6 +24,7 @@ from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 
 HIDDEN = 512
+MIN_SCALE = 0.1
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,9 @@ def train(
     torch.manual_seed(options.seed)
     model = ADMLP(data["x"].shape[1], data["y"].shape[1])
     model.mean.copy_(data["x"].mean(0))
-    model.scale.copy_(data["x"].std(0).clamp_min(1e-3))
+    # a feature (nearly) constant in training (no yaw rate on straight clips) must not be blown
+    # up 1000-fold when it varies at test time: spreads under 0.1 (m, m/s, rad/s) count as 0.1
+    model.scale.copy_(data["x"].std(0).clamp_min(MIN_SCALE))
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
     state = {"epoch": 0, "losses": []}
     if checkpoint.is_file():

@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Open-loop baselines on a collected, split data root: trains AD-MLP on the train split, plans
+# with it and with constant velocity on SPLIT, and scores both in both L2 conventions.
+#   bash scripts/openloop_baselines.sh DATA [SPLIT (default val)] [EPOCHS (default 60)]
+# Writes DATA/results/openloop/{admlp.pt, <model>_<split>.parquet, <model>_<split>_<convention>.json}
+# and prints the tables. Rerunning resumes the training and rewrites the rest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA="$1"
+SPLIT="${2:-val}"
+EPOCHS="${3:-60}"
+OUT="$DATA/results/openloop"
+DRIVEE2E="${DRIVEE2E:-.venv/bin/drivee2e}"
+mkdir -p "$OUT"
+[ -f "$DATA/splits/default.csv" ] || "$DRIVEE2E" split "$DATA"
+"$DRIVEE2E" train admlp "$DATA" --split train --epochs "$EPOCHS" --out "$OUT/admlp.pt"
+"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model constant-velocity --out "$OUT/constant-velocity_$SPLIT.parquet"
+"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model admlp --checkpoint "$OUT/admlp.pt" --out "$OUT/admlp_$SPLIT.parquet"
+for model in constant-velocity admlp; do
+    for convention in stp3 uniad; do
+        echo "== $model on $SPLIT ($convention)"
+        "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/${model}_$SPLIT.parquet" \
+            --convention "$convention" --json "$OUT/${model}_${SPLIT}_$convention.json"
+    done
+done
