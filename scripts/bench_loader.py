@@ -9,7 +9,7 @@ folder is written first by `export_nuscenes(keyframe_every=1)` (every frame's si
 files, as nuScenes keeps `samples/CAM_*/*.jpg`); its Dataset differs from ours only in where
 the JPEG bytes come from, so the ratio isolates storage. Each configuration iterates a
 DataLoader (persistent workers, warmed up on one pass of 2 batches per worker) over the same
-samples; samples/s is the median of three timed passes. Peak memory per worker is VmHWM of the
+samples; samples/s is the median of `--passes` timed passes. Peak memory per worker is VmHWM of the
 worker processes. With `--device cuda`, the `decode="none"` path decodes each batch with
 nvJPEG in the main process.
 """
@@ -102,7 +102,7 @@ def _measure(
 
     one_pass(limit=2 * max(1, args.workers))  # start the workers, open the logs
     rates = []
-    for _ in range(3):
+    for _ in range(args.passes):
         start = time.perf_counter()
         count = one_pass()
         rates.append(count / (time.perf_counter() - start))
@@ -116,13 +116,15 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=400)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--batch-size", type=int, default=4)
+    parser.add_argument("--passes", type=int, default=3, help="timed passes (the median counts)")
     parser.add_argument("--device", default=None, help="cuda: also measure decode on the GPU")
-    parser.add_argument("--folder", type=Path, default=None, help="reuse this nuScenes export")
+    parser.add_argument(
+        "--folder", type=Path, default=None, help="the reference export (written if absent)"
+    )
     args = parser.parse_args()
 
-    folder = args.folder
-    if folder is None:
-        folder = Path(tempfile.mkdtemp(prefix="bench_loader_")) / "nuscenes"
+    folder = args.folder or Path(tempfile.mkdtemp(prefix="bench_loader_")) / "nuscenes"
+    if not folder.exists():
         start = time.perf_counter()
         export_nuscenes(args.data, folder, split=args.split, keyframe_every=1)
         print(f"reference folder: {folder} ({time.perf_counter() - start:.0f} s to write)")

@@ -50,6 +50,13 @@ def features(batch: dict[str, torch.Tensor]) -> torch.Tensor:
     )
 
 
+def continuous_features(history_steps: int) -> torch.Tensor:
+    """Indices into `features` of the continuous values (history positions, ego status)."""
+    history = torch.arange(2 * history_steps)
+    status = 3 * history_steps + torch.arange(10)  # after the positions and their mask
+    return torch.cat([history, status])
+
+
 class ADMLP(nn.Module):
     """Standardised features -> two hidden layers -> `steps` waypoints."""
 
@@ -107,10 +114,12 @@ def train(
     data = extract(dataset, on_sample)
     torch.manual_seed(options.seed)
     model = ADMLP(data["x"].shape[1], data["y"].shape[1])
-    model.mean.copy_(data["x"].mean(0))
-    # a feature (nearly) constant in training (no yaw rate on straight clips) must not be blown
-    # up 1000-fold when it varies at test time: spreads under 0.1 (m, m/s, rad/s) count as 0.1
-    model.scale.copy_(data["x"].std(0).clamp_min(MIN_SCALE))
+    # continuous features are standardised; a spread under 0.1 (m, m/s, rad/s) counts as 0.1,
+    # so a feature constant in training (no yaw rate on straight clips) is not blown up 1000-fold
+    # where it varies at test time. Masks and the one-hot command stay 0/1 as they are.
+    continuous = continuous_features(dataset.horizons.history_steps)
+    model.mean[continuous] = data["x"][:, continuous].mean(0)
+    model.scale[continuous] = data["x"][:, continuous].std(0).clamp_min(MIN_SCALE)
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
     state = {"epoch": 0, "losses": []}
     if checkpoint.is_file():
