@@ -18,6 +18,9 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 import torch
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from google.protobuf.message import DecodeError
 from numpy.typing import NDArray
 from torch.utils.data import Dataset
 
@@ -293,7 +296,7 @@ class DriveE2EDataset(Dataset):
                     )
                 )
         if self.with_lidar:
-            (cloud,) = self._read(log, frame, [topics.LIDAR])
+            (cloud,) = self._read(log, frame, [topics.LIDAR], PointCloud)
             rows = cloud_rows(cloud)
             points = np.column_stack(
                 [rows["x"], rows["y"], rows["z"], rows["intensity"], rows["ring"]]
@@ -305,20 +308,28 @@ class DriveE2EDataset(Dataset):
 
     def jpegs(self, log: LogReader, scenario_id: str, frame: int) -> list[bytes]:
         """The frame's JPEG bytes in camera order (one chunk read from the log)."""
-        images = self._read(log, frame, [topics.image_topic(c) for c in self.cameras])
+        images = self._read(
+            log, frame, [topics.image_topic(c) for c in self.cameras], CompressedImage
+        )
         return [image.data for image in images]
 
-    def _read(self, log: LogReader, frame: int, topic_names: list[str]) -> list[Any]:
-        messages = log.frame(frame, topic_names)
-        missing = [t for t in topic_names if t not in messages]
+    def _read(self, log: LogReader, frame: int, topic_names: list[str], kind: Any) -> list[Any]:
+        """The frame's messages of these topics, parsed as `kind` (a protobuf class)."""
+        raw = log.frame_raw(frame, topic_names)
+        missing = [t for t in topic_names if t not in raw]
         if missing:
             raise LogFormatError(f"{log.path}: topic {missing[0]} has no message at frame {frame}")
-        return [messages[t] for t in topic_names]
+        try:
+            return [kind.FromString(raw[t]) for t in topic_names]
+        except DecodeError as error:
+            raise LogFormatError(
+                f"{log.path}: frame {frame}: undecodable message ({error})"
+            ) from None
 
     def _radar(self, log: LogReader, frame: int, info: dict[str, Any]) -> NDArray[np.float32]:
         """(R, 7) x, y, z, vx, vy, rcs, radar index (in `topics.RADARS`), LiDAR frame."""
         names = [n for n in topics.RADARS if n in info["radars"]]
-        clouds = self._read(log, frame, [topics.radar_topic(n) for n in names])
+        clouds = self._read(log, frame, [topics.radar_topic(n) for n in names], PointCloud)
         ego_to_lidar = np.linalg.inv(info["lidar2ego"])
         parts = []
         for name, cloud in zip(names, clouds, strict=True):

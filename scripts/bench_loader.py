@@ -9,7 +9,7 @@ folder is written first by `export_nuscenes(keyframe_every=1)` (every frame's si
 files, as nuScenes keeps `samples/CAM_*/*.jpg`); its Dataset differs from ours only in where
 the JPEG bytes come from, so the ratio isolates storage. Each configuration iterates a
 DataLoader (persistent workers, warmed up on one pass of 2 batches per worker) over the same
-samples; samples/s is the median of `--passes` timed passes. Peak memory per worker is VmHWM of the
+samples; samples/s is the median of `--passes` timed passes, alternating between the two loaders. Peak memory per worker is VmHWM of the
 worker processes. With `--device cuda`, the `decode="none"` path decodes each batch with
 nvJPEG in the main process.
 """
@@ -66,47 +66,53 @@ def _worker_peak_bytes() -> int:
 
 
 def measure(*args, **kwargs):  # type: ignore[no-untyped-def]
-    """`_measure`, then the loader's workers are gone before the next configuration starts."""
+    """`_measure`, then the loaders' workers are gone before the next configuration starts."""
     result = _measure(*args, **kwargs)
     gc.collect()
     return result
 
 
 def _measure(
-    dataset: DriveE2EDataset, indices: list[int], args: argparse.Namespace, device: str | None
-) -> tuple[float, int]:
-    """(samples/s, peak bytes per worker) over `indices`."""
-    loader = DataLoader(
-        Subset(dataset, indices),
-        batch_size=args.batch_size,
-        num_workers=args.workers,
-        persistent_workers=args.workers > 0,
-        collate_fn=collate,
-        prefetch_factor=4 if args.workers else None,
-    )
-    full_size = None
-    if device is not None:
-        first = dataset.log_info[dataset.samples[0][0]]["cameras"][dataset.cameras[0]]
-        full_size = first["full_size"]
+    datasets: list[DriveE2EDataset],
+    indices: list[int],
+    args: argparse.Namespace,
+    device: str | None,
+) -> tuple[list[float], int]:
+    """Samples/s of each dataset over `indices` (passes alternate between the datasets, so a
+    slow spell of the machine hits both alike), and the peak bytes of any worker."""
+    loaders = [
+        DataLoader(
+            Subset(dataset, indices),
+            batch_size=args.batch_size,
+            num_workers=args.workers,
+            persistent_workers=args.workers > 0,
+            collate_fn=collate,
+            prefetch_factor=4 if args.workers else None,
+        )
+        for dataset in datasets
+    ]
+    first = datasets[0].log_info[datasets[0].samples[0][0]]["cameras"][datasets[0].cameras[0]]
 
-    def one_pass(limit: int | None = None) -> int:
+    def one_pass(loader: DataLoader, limit: int | None = None) -> int:
         count = 0
         for k, batch in enumerate(loader):
             if device is not None:
-                batch = decode_jpegs(batch, full_size, dataset.image_size, device)
+                batch = decode_jpegs(batch, first["full_size"], datasets[0].image_size, device)
                 torch.cuda.synchronize()
             count += len(batch["scene_token"])
             if limit is not None and k + 1 >= limit:
                 break
         return count
 
-    one_pass(limit=2 * max(1, args.workers))  # start the workers, open the logs
-    rates = []
+    for loader in loaders:
+        one_pass(loader, limit=2 * max(1, args.workers))  # start the workers, open the logs
+    rates: list[list[float]] = [[] for _ in loaders]
     for _ in range(args.passes):
-        start = time.perf_counter()
-        count = one_pass()
-        rates.append(count / (time.perf_counter() - start))
-    return statistics.median(rates), _worker_peak_bytes()
+        for k, loader in enumerate(loaders):
+            start = time.perf_counter()
+            count = one_pass(loader)
+            rates[k].append(count / (time.perf_counter() - start))
+    return [statistics.median(r) for r in rates], _worker_peak_bytes()
 
 
 def main() -> int:
@@ -138,35 +144,26 @@ def main() -> int:
         f"{args.workers} workers, batch {args.batch_size}, torch threads {torch.get_num_threads()}"
     )
     rows = []
-    for label, size in (("full", None), ("half", half)):
-        reference, reference_peak = measure(
-            FolderDataset(folder, args.data, args.split, image_size=size), indices, args, None
-        )
-        ours, peak = measure(
-            DriveE2EDataset(args.data, args.split, image_size=size), indices, args, None
-        )
-        rows.append((f"{label} size, decoded on the CPU", reference, ours, peak, reference_peak))
+    modes = [("cpu", None, "decoded on the CPU")]
     if args.device is not None:
+        modes.append(("none", args.device, f"decoded on {args.device}"))
+    for decode, device, where in modes:
         for label, size in (("full", None), ("half", half)):
-            reference, reference_peak = measure(
-                FolderDataset(folder, args.data, args.split, image_size=size, decode="none"),
+            options = {"image_size": size, "decode": decode}
+            (reference, ours), peak = measure(
+                [
+                    FolderDataset(folder, args.data, args.split, **options),
+                    DriveE2EDataset(args.data, args.split, **options),
+                ],
                 indices,
                 args,
-                args.device,
+                device,
             )
-            ours, peak = measure(
-                DriveE2EDataset(args.data, args.split, image_size=size, decode="none"),
-                indices,
-                args,
-                args.device,
-            )
-            rows.append(
-                (f"{label} size, decoded on {args.device}", reference, ours, peak, reference_peak)
-            )
+            rows.append((f"{label} size, {where}", reference, ours, peak))
     print(
         f"{'configuration':38s} {'files (ref)':>12s} {'MCAP logs':>10s} {'ratio':>6s} {'peak/worker':>12s}"
     )
-    for label, reference, ours, peak, _ in rows:
+    for label, reference, ours, peak in rows:
         print(
             f"{label:38s} {reference:10.1f}/s {ours:8.1f}/s {ours / reference:6.2f} {peak / 2**30:9.2f} GiB"
         )
