@@ -21,6 +21,7 @@ from drivee2e_data.scenario import AgentClass
 
 # the 8 agent classes in label order: gt_labels index this tuple
 CLASSES: tuple[str, ...] = tuple(c.value for c in AgentClass)
+_LABEL_OF = {name: k for k, name in enumerate(CLASSES)}
 # traffic-light state one-hot order (the light the ego's route passes)
 LIGHT_STATES = ("RED", "YELLOW", "GREEN", "NONE")
 _SMALL_TOPICS = (topics.EGO_STATE, topics.IMU, topics.OBJECTS, topics.TRAFFIC_LIGHTS)
@@ -129,10 +130,9 @@ def read_clip(log: LogReader) -> ClipLabels:
 
 def _frame_boxes(message) -> FrameBoxes:  # type: ignore[no-untyped-def]
     objects = list(message.objects)
-    label_of = {name: k for k, name in enumerate(CLASSES)}
     return FrameBoxes(
         instance_ids=tuple(o.instance_id for o in objects),
-        labels=np.array([label_of[o.category] for o in objects], np.int64),
+        labels=np.array([_LABEL_OF[o.category] for o in objects], np.int64),
         size_m=np.array([(o.length, o.width, o.height) for o in objects]).reshape(-1, 3),
         centre_m=np.array([(o.x, o.y, o.z) for o in objects]).reshape(-1, 3),
         yaw_rad=np.array([o.yaw for o in objects], np.float64),

@@ -52,14 +52,17 @@ class DriveE2EDataModule(_Base):  # type: ignore[misc, valid-type]
             stage or "", ("train", "val", "test")
         )
         for split in wanted:
-            if split not in self.datasets:
-                self.datasets[split] = DriveE2EDataset(
-                    self.root, split, self.split_name, **self.dataset_options
-                )
+            self._dataset(split)
+
+    def _dataset(self, split: str) -> DriveE2EDataset:
+        if split not in self.datasets:
+            self.datasets[split] = DriveE2EDataset(
+                self.root, split, self.split_name, **self.dataset_options
+            )
+        return self.datasets[split]
 
     def _loader(self, split: str, shuffle: bool) -> DataLoader:
-        self.setup(None if split not in self.datasets else "validate")
-        dataset = self.datasets[split]
+        dataset = self._dataset(split)  # a loader may be asked for without setup
         sampler = None
         lightning = _Base is not object
         if (

@@ -96,10 +96,10 @@ class DriveE2EDataset(Dataset):
         self.with_lidar, self.with_radar = with_lidar, with_radar
         self.queue_length, self.queue_stride_frames = queue_length, queue_stride_frames
         self.horizons = labels.Horizons.of(history_s, future_s)
-        self.manifest = splits.split_path(self.root, split_name)
-        rows = splits.read_manifest(self.manifest)
         if split != "all" and split not in splits.SPLITS:
             raise ValueError(f"split {split!r}: expected one of {', '.join(splits.SPLITS)} or all")
+        self.manifest = splits.split_path(self.root, split_name)
+        rows = splits.read_manifest(self.manifest)
         chosen = [r for r in rows if split == "all" or r.split == split]
         self.categories = {r.scenario_id: r.category for r in rows}
         self.samples = self._index(chosen, frame_stride)

@@ -2,8 +2,8 @@
 # Install everything, lint, and run the test suite. Fails on any failure.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# the tests run the Ray backend too, on a local Ray
-EXTRAS=dev,viz,ray bash scripts/install.sh
+# the tests run the Ray backend too (on a local Ray) and the data module under Lightning
+EXTRAS=dev,viz,ray,lightning bash scripts/install.sh
 # The official nuscenes-devkit checks the nuScenes export; its pins (numpy<2, shapely 2.0) clash
 # with this package, so it gets an environment of its own.
 if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then

@@ -320,3 +320,40 @@ def test_committed_quickstart_manifest_is_what_split_makes(
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
     assert main(["split", str(root), "--seed", "0"]) == 0
     assert (root / "splits" / "default.csv").read_bytes() == committed.read_bytes()
+
+
+def test_data_module_drives_a_lightning_fit(loader_root: Path, tmp_path: Path) -> None:
+    """With Lightning installed the module is a LightningDataModule: a Trainer fits through it,
+    and JPEG bytes (decode="none") arrive decoded on the training device."""
+    lightning = pytest.importorskip("lightning.pytorch")
+    module = DriveE2EDataModule(
+        loader_root, batch_size=2, num_workers=0, cameras=("CAM_FRONT",), decode="none"
+    )
+    assert isinstance(module, lightning.LightningDataModule)
+    seen: list[tuple[int, ...]] = []
+
+    class Planner(lightning.LightningModule):
+        def __init__(self) -> None:
+            super().__init__()
+            self.layer = torch.nn.Linear(10, 12)
+
+        def training_step(self, batch, batch_index):  # type: ignore[no-untyped-def]
+            seen.append(tuple(batch["img"].shape))
+            plan = self.layer(batch["ego_status"]).reshape(-1, 6, 2)
+            return (plan - batch["gt_ego_fut_trajs"]).abs().mean()
+
+        def configure_optimizers(self):  # type: ignore[no-untyped-def]
+            return torch.optim.SGD(self.parameters(), lr=1e-3)
+
+    trainer = lightning.Trainer(
+        max_epochs=1,
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        limit_val_batches=0,
+        default_root_dir=tmp_path,
+    )
+    trainer.fit(Planner(), datamodule=module)
+    assert seen and all(shape[1:] == (1, 3, 90, 160) for shape in seen)
+    assert sum(shape[0] for shape in seen) == 14  # every train sample once
