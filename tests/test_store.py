@@ -159,3 +159,22 @@ def test_bad_bundle_gives_one_clear_error_and_writes_nothing(case, tiny_root: Pa
 def test_scenarios_on_a_folder_without_data_fails_clearly(tmp_path: Path, capsys):
     assert main(["scenarios", str(tmp_path)]) == 2
     assert "no scenarios/ folder" in capsys.readouterr().err
+
+
+def test_written_files_and_bundles_take_the_umask(tmp_path: Path) -> None:
+    """Atomic writes go through mkstemp/mkdtemp (0600/0700); what they leave must be readable
+    by others on a shared data root as an ordinary write would be."""
+    import os
+    import stat
+
+    from drivee2e_data import store
+
+    previous = os.umask(0o022)
+    try:
+        store.write_bytes_atomic(tmp_path / "index.parquet", b"x")
+        with store._atomic_folder(tmp_path / "bundle") as folder:
+            (folder / "meta.json").write_text("{}")
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / "index.parquet").stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / "bundle").stat().st_mode) == 0o755
