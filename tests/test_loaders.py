@@ -357,3 +357,25 @@ def test_data_module_drives_a_lightning_fit(loader_root: Path, tmp_path: Path) -
     trainer.fit(Planner(), datamodule=module)
     assert seen and all(shape[1:] == (1, 3, 90, 160) for shape in seen)
     assert sum(shape[0] for shape in seen) == 14  # every train sample once
+
+
+def test_distributed_sampler_splits_the_samples_between_ranks(loader_root: Path) -> None:
+    from torch.utils.data import DistributedSampler
+
+    dataset = DriveE2EDataset(loader_root, "train", cameras=())
+    seen = []
+    for rank in (0, 1):
+        sampler = DistributedSampler(dataset, num_replicas=2, rank=rank, shuffle=True, seed=4)
+        loader = DataLoader(
+            dataset, batch_size=3, sampler=sampler, num_workers=1, collate_fn=collate, timeout=120
+        )
+        seen.append(
+            [
+                (scene, frame)
+                for b in loader
+                for scene, frame in zip(b["scene_token"], b["frame_idx"].tolist(), strict=True)
+            ]
+        )
+    assert len(seen[0]) == len(seen[1]) == 7
+    assert not set(seen[0]) & set(seen[1])
+    assert set(seen[0]) | set(seen[1]) == set(dataset.samples)
