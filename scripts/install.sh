@@ -13,7 +13,8 @@ python -m pip install --quiet --upgrade pip
 python -m pip install --quiet ${TORCH_SPEC:-torch==2.13.0}
 python -m pip install --quiet -e ".[${EXTRAS:-dev,viz}]"
 # The CommonRoad importer uses commonroad-io's XML reader only. commonroad-io pins
-# protobuf==3.20, which the MCAP stack cannot use, so it goes in without its own requirements
-# and with the ones its XML reader needs.
-python -m pip install --quiet --no-deps "commonroad-io==2026.1" "commonroad-vehicle-models==3.0.2"
+# protobuf==3.20, which the MCAP stack cannot use, so it goes in without its own requirements,
+# after the ones its XML reader needs: installed last and with --no-deps, pip has no conflict
+# to report (installed earlier, every later pip call printed a resolver ERROR about the pin).
 python -m pip install --quiet "omegaconf>=2.1" "iso3166>=1.0" "lxml>=4.2" "networkx>=2.2" "rtree>=0.8" "scipy>=1.11" "pillow>=10.4"
+python -m pip install --quiet --no-deps "commonroad-io==2026.1" "commonroad-vehicle-models==3.0.2"
