@@ -1,6 +1,6 @@
-"""Batching samples: fixed-shape tensors are stacked, per-box fields padded to the batch's most
-boxes (with `gt_boxes_mask`), point clouds and strings kept as lists, JPEG bytes kept for
-`decode_batch` (on the GPU, in the main process).
+"""Batching samples: fixed-shape tensors are stacked, per-box and per-map-polyline fields
+padded to the batch's most rows (with `gt_boxes_mask`, `gt_map_mask`), point clouds and strings
+kept as lists, JPEG bytes kept for `decode_jpegs` (on the GPU, in the main process).
 """
 
 from __future__ import annotations
@@ -10,10 +10,15 @@ from typing import Any
 
 import torch
 
-from drivee2e_data.loaders.dataset import BOX_FIELDS, scalar_tensor
+from drivee2e_data.loaders.dataset import BOX_FIELDS, MAP_FIELDS, scalar_tensor
 from drivee2e_data.loaders.images import decode_batch
 
 LIST_FIELDS = ("points", "radar_points", "img_jpeg")
+# (field whose length counts the rows, the fields padded to the batch's most rows, their mask)
+PADDED = (
+    ("gt_labels", BOX_FIELDS, "gt_boxes_mask"),
+    ("gt_map_labels", MAP_FIELDS, "gt_map_mask"),
+)
 
 
 def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
@@ -21,14 +26,19 @@ def collate(samples: Sequence[dict[str, Any]]) -> dict[str, Any]:
     if not samples:
         raise ValueError("collate needs at least one sample")
     batch: dict[str, Any] = {}
-    most = max(len(s["gt_labels"]) for s in samples)
-    batch["gt_boxes_mask"] = torch.zeros((len(samples), most), dtype=torch.bool)
-    for k, s in enumerate(samples):
-        batch["gt_boxes_mask"][k, : len(s["gt_labels"])] = True
+    rows: dict[str, int] = {}  # padded field -> rows it is padded to
+    for count_key, fields, mask_key in PADDED:
+        if count_key not in samples[0]:
+            continue
+        most = max(len(s[count_key]) for s in samples)
+        batch[mask_key] = torch.zeros((len(samples), most), dtype=torch.bool)
+        for k, s in enumerate(samples):
+            batch[mask_key][k, : len(s[count_key])] = True
+        rows.update(dict.fromkeys(fields, most))
     for key in samples[0]:
         values = [s[key] for s in samples]
-        if key in BOX_FIELDS and torch.is_tensor(values[0]):
-            batch[key] = _pad(values, most)
+        if key in rows and torch.is_tensor(values[0]):
+            batch[key] = _pad(values, rows[key])
         elif key in LIST_FIELDS or not (
             torch.is_tensor(values[0]) or isinstance(values[0], (int, float))
         ):

@@ -24,11 +24,18 @@ from google.protobuf.message import DecodeError
 from numpy.typing import NDArray
 from torch.utils.data import Dataset
 
-from drivee2e_data import splits
+from drivee2e_data import splits, store
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.loaders import sample as labels
 from drivee2e_data.loaders.clip import CLASSES, ClipLabels, read_clip
 from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.loaders.map_labels import (
+    DEFAULT_PATCH_M,
+    DEFAULT_POINTS,
+    MapElements,
+    map_elements,
+    map_labels,
+)
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
 
@@ -49,6 +56,7 @@ BOX_FIELDS = (
     "gt_agent_fut_yaw",
     "gt_agent_fut_boxes",
 )
+MAP_FIELDS = ("gt_map_pts", "gt_map_labels")  # one row per map polyline (padded by `collate`)
 
 
 class DriveE2EDataset(Dataset):
@@ -67,6 +75,9 @@ class DriveE2EDataset(Dataset):
             apart; per-frame fields then gain a leading queue dimension.
         history_s, future_s: the ego's and agents' trajectory horizons at 2 Hz.
         frame_stride: serve every n-th logged frame (5 gives nuScenes' 2 Hz keyframes).
+        with_map: add the vector map labels `gt_map_pts` (K, map_points, 2) and
+            `gt_map_labels` (K,) in the LiDAR frame, inside a patch of `map_patch_m` (along x,
+            along y); needs the data root's `maps/<map_id>.json`.
     """
 
     def __init__(
@@ -84,6 +95,9 @@ class DriveE2EDataset(Dataset):
         history_s: float = 2.0,
         future_s: float = 3.0,
         frame_stride: int = 1,
+        with_map: bool = True,
+        map_patch_m: tuple[float, float] = DEFAULT_PATCH_M,
+        map_points: int = DEFAULT_POINTS,
     ) -> None:
         self.root = Path(root)
         if decode not in DECODE_MODES:
@@ -96,6 +110,7 @@ class DriveE2EDataset(Dataset):
         self.with_lidar, self.with_radar = with_lidar, with_radar
         self.queue_length, self.queue_stride_frames = queue_length, queue_stride_frames
         self.horizons = labels.Horizons.of(history_s, future_s)
+        self.with_map, self.map_patch_m, self.map_points = with_map, map_patch_m, map_points
         if split != "all" and split not in splits.SPLITS:
             raise ValueError(f"split {split!r}: expected one of {', '.join(splits.SPLITS)} or all")
         self.manifest = splits.split_path(self.root, split_name)
@@ -106,6 +121,7 @@ class DriveE2EDataset(Dataset):
         self._pid = -1
         self._logs: OrderedDict[str, LogReader] = OrderedDict()
         self._clips: dict[str, ClipLabels] = {}
+        self._maps: dict[str, MapElements] = {}
 
     # ------------------------------------------------------------------ building the index
 
@@ -131,6 +147,12 @@ class DriveE2EDataset(Dataset):
                 )
             with LogReader(path) as log:  # a truncated log fails here, naming its file
                 self.log_info[row.scenario_id] = self._check_log(log)
+            map_file = store.map_path(self.root, self.log_info[row.scenario_id]["map_id"])
+            if self.with_map and not map_file.is_file():
+                raise DriveE2EError(
+                    f"{map_file}: the map of clip {row.scenario_id!r} is missing (map labels "
+                    "need it; pass with_map=False to go without)"
+                )
             clip_frames = sorted(frames[row.scenario_id])
             samples.extend((row.scenario_id, f) for f in clip_frames[::frame_stride])
         return samples
@@ -160,7 +182,12 @@ class DriveE2EDataset(Dataset):
         radars = {
             name: np.array(value["sensor_to_ego"]) for name, value in log.rig["radars"].items()
         }
-        return {"lidar2ego": lidar_to_ego, "cameras": cameras, "radars": radars}
+        return {
+            "lidar2ego": lidar_to_ego,
+            "cameras": cameras,
+            "radars": radars,
+            "map_id": str(log.scenario_meta["map_id"]),
+        }
 
     def log_path(self, scenario_id: str) -> Path:
         return self.root / LOGS_FOLDER / f"{scenario_id}.mcap"
@@ -172,12 +199,12 @@ class DriveE2EDataset(Dataset):
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_logs"], state["_clips"], state["_pid"] = OrderedDict(), {}, -1
+        state["_logs"], state["_clips"], state["_maps"], state["_pid"] = OrderedDict(), {}, {}, -1
         return state
 
     def _open(self, scenario_id: str) -> tuple[LogReader, ClipLabels]:
         if self._pid != os.getpid():  # a forked worker: the parent's open files are not ours
-            self._pid, self._logs, self._clips = os.getpid(), OrderedDict(), {}
+            self._pid, self._logs, self._clips, self._maps = os.getpid(), OrderedDict(), {}, {}
         log = self._logs.get(scenario_id)
         if log is None:
             log = LogReader(self.log_path(scenario_id))
@@ -189,6 +216,12 @@ class DriveE2EDataset(Dataset):
         if scenario_id not in self._clips:
             self._clips[scenario_id] = read_clip(log)
         return log, self._clips[scenario_id]
+
+    def map_elements(self, map_id: str) -> MapElements:
+        """A map's labelled polylines (read and derived once per process)."""
+        if map_id not in self._maps:
+            self._maps[map_id] = map_elements(store.read_map(self.root, map_id))
+        return self._maps[map_id]
 
     def clip_labels(self, scenario_id: str) -> ClipLabels:
         """The labels of one clip of this dataset (read once per process)."""
@@ -235,7 +268,8 @@ class DriveE2EDataset(Dataset):
         agents = labels.agent_futures(clip, row, self.horizons.future_steps, lidar_to_world)
         light = np.zeros(4, np.float32)
         light[clip.ego_light[row]] = 1.0
-        return {
+        result = self._map_labels(info, lidar_to_world) if self.with_map else {}
+        return result | {
             "gt_boxes": _f32(labels.box_array(boxes, lidar_to_world)),
             "gt_labels": torch.from_numpy(boxes.labels.copy()),
             "gt_names": [CLASSES[k] for k in boxes.labels],
@@ -260,6 +294,14 @@ class DriveE2EDataset(Dataset):
             "target_point": _f32(labels.target_point(clip, row)),
             "frame_idx": int(clip.first_frame + row),
         }
+
+    def _map_labels(
+        self, info: dict[str, Any], lidar_to_world: NDArray[np.float64]
+    ) -> dict[str, Any]:
+        points, classes = map_labels(
+            self.map_elements(info["map_id"]), lidar_to_world, self.map_patch_m, self.map_points
+        )
+        return {"gt_map_pts": _f32(points), "gt_map_labels": torch.from_numpy(classes)}
 
     def _frame(
         self, log: LogReader, clip: ClipLabels, row: int, info: dict[str, Any]

@@ -101,6 +101,10 @@ def test_info_pickle_has_every_key_for_every_sample(
         assert info["gt_boxes"].shape == (count, 7)
         assert info["gt_agent_fut_trajs"].shape == (count, 12)
         assert info["gt_ego_fut_trajs"].shape == (6, 2) and info["gt_ego_his_trajs"].shape == (2, 2)
+        assert info["gt_map_pts"].shape[1:] == (20, 2)
+        assert len(info["gt_map_pts"]) == len(info["gt_map_labels"]) > 0
+        assert np.abs(info["gt_map_pts"][..., 0]).max() <= 15.0 + 1e-4  # across: nuScenes x
+        assert np.abs(info["gt_map_pts"][..., 1]).max() <= 30.0 + 1e-4
         assert Path(info["lidar_path"]).is_file()
         assert all(Path(cam["data_path"]).is_file() for cam in info["cams"].values())
     # the straight clip drives forward: in nuScenes' LiDAR axes that is +y, at the log's speed
@@ -111,6 +115,12 @@ def test_info_pickle_has_every_key_for_every_sample(
         steps = info["gt_ego_fut_trajs"][mask]
         assert np.allclose(steps[:, 0], 0.0, atol=1e-3)
         positions = np.cumsum(info["gt_ego_fut_trajs"], axis=0)[mask]
+        # the map labels are the Dataset's, turned into nuScenes' axes (x right, y forward)
+        mine = sample["gt_map_pts"].double().numpy()
+        turned = np.stack([-mine[..., 1], mine[..., 0]], -1)
+        ours = sorted(map(tuple, np.round(turned.reshape(len(turned), -1), 2)))
+        theirs = sorted(map(tuple, np.round(info["gt_map_pts"].reshape(len(turned), -1), 2)))
+        assert np.allclose(ours, theirs, atol=0.02)
         assert np.allclose(
             positions[:, 1], sample["gt_ego_fut_trajs"][mask][:, 0].numpy(), atol=1e-3
         )

@@ -379,3 +379,65 @@ def test_distributed_sampler_splits_the_samples_between_ranks(loader_root: Path)
     assert len(seen[0]) == len(seen[1]) == 7
     assert not set(seen[0]) & set(seen[1])
     assert set(seen[0]) | set(seen[1]) == set(dataset.samples)
+
+
+def test_map_labels_lie_on_the_map_inside_the_patch(loader_root: Path) -> None:
+    import shapely
+
+    from drivee2e_data.loaders.map_labels import MAP_CLASSES
+
+    dataset = DriveE2EDataset(
+        loader_root, "test", cameras=(), map_patch_m=(60.0, 30.0), map_points=20
+    )
+    intersection_map = store.read_map(
+        loader_root, dataset.log_info[dataset.samples[0][0]]["map_id"]
+    )
+    crossings = [shapely.Polygon(c.polygon_m[:, :2]).exterior for c in intersection_map.crosswalks]
+    lane_lines = [
+        shapely.LineString(side[:, :2])
+        for lane in intersection_map.lanes
+        for side in (lane.left_boundary_m, lane.right_boundary_m)
+    ]
+    seen = set()
+    for index in (0, 15, 30):
+        sample = dataset[index]
+        points, classes = sample["gt_map_pts"].double().numpy(), sample["gt_map_labels"].numpy()
+        assert points.shape[1:] == (20, 2) and len(points) == len(classes) > 0
+        assert (
+            np.abs(points[..., 0]).max() <= 30.0 + 1e-6
+            and np.abs(points[..., 1]).max() <= 15.0 + 1e-6
+        )
+        lidar_to_world = (sample["ego2global"] @ sample["lidar2ego"]).numpy()
+        for line, label in zip(points, classes, strict=True):
+            world = line @ lidar_to_world[:2, :2].T + lidar_to_world[:2, 3]
+            name = MAP_CLASSES[label]
+            seen.add(name)
+            spots = shapely.MultiPoint(world)
+            if name == "ped_crossing":
+                assert min(ring.distance(spots) for ring in crossings) < 1e-6
+                assert (
+                    max(min(r.distance(shapely.Point(p)) for r in crossings) for p in world) < 1e-6
+                )
+            else:  # dividers and the road's edge run along lane boundaries
+                assert (
+                    max(min(edge.distance(shapely.Point(p)) for edge in lane_lines) for p in world)
+                    < 0.05
+                )
+            spacing = np.linalg.norm(np.diff(line, axis=0), axis=1)
+            assert np.allclose(spacing, spacing.mean(), rtol=0.05, atol=1e-3)  # evenly resampled
+    assert {"divider", "boundary"} <= seen
+    # on the straight approach the dividers run along the ego's heading
+    first = dataset[0]
+    dividers = first["gt_map_pts"][first["gt_map_labels"] == MAP_CLASSES.index("divider")]
+    assert len(dividers) >= 1
+    assert (dividers[:, -1, 1] - dividers[:, 0, 1]).abs().max() < 0.1
+
+
+def test_map_labels_need_the_map_or_say_so(loader_root: Path, tmp_path: Path) -> None:
+    root = _root_with(loader_root, tmp_path)
+    for path in (root / "maps").glob("*.json"):
+        path.unlink()
+    with pytest.raises(DriveE2EError, match=r"is missing .*with_map=False"):
+        DriveE2EDataset(root, "val")
+    sample = DriveE2EDataset(root, "val", cameras=(), with_map=False)[0]
+    assert "gt_map_pts" not in sample

@@ -9,7 +9,9 @@ code reads it unchanged:
   LiDAR origin, `gt_agent_fut_trajs` (N, 12); `gt_ego_fut_cmd` one-hot right, left, straight;
 - `gt_ego_lcf_feat` (9): vx, vy (LiDAR frame), ax, ay (ego frame), yaw rate, length, width,
   speed, curvature (tan(steer) / wheelbase);
-- `gt_agent_lcf_feat` (N, 9): x, y, yaw, vx, vy, width, length, height, category index.
+- `gt_agent_lcf_feat` (N, 9): x, y, yaw, vx, vy, width, length, height, category index;
+- `gt_map_pts` (K, 20, 2), `gt_map_labels` (K,): the vector map labels of `loaders.map_labels`
+  (divider 0, ped_crossing 1, boundary 2) in a 30 m (x) by 60 m (y) patch.
 
 File paths point into the nuScenes export of the same clips (`drivee2e export nuscenes`), whose
 tokens are the same.
@@ -31,6 +33,7 @@ from drivee2e_data.export import common
 from drivee2e_data.export.nuscenes import clips_for
 from drivee2e_data.loaders import sample as labels
 from drivee2e_data.loaders.clip import CLASSES, ClipLabels, read_clip
+from drivee2e_data.loaders.map_labels import DEFAULT_PATCH_M, MapElements, map_elements, map_labels
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.sensors.ego_state import WHEELBASE_SHARE
 
@@ -42,7 +45,7 @@ INFO_KEYS = (
     "gt_boxes", "gt_names", "gt_velocity", "num_lidar_pts", "num_radar_pts", "valid_flag",
     "gt_agent_fut_trajs", "gt_agent_fut_masks", "gt_agent_lcf_feat", "gt_agent_fut_yaw",
     "gt_agent_fut_goal", "gt_ego_his_trajs", "gt_ego_fut_trajs", "gt_ego_fut_masks",
-    "gt_ego_fut_cmd", "gt_ego_lcf_feat",
+    "gt_ego_fut_cmd", "gt_ego_lcf_feat", "gt_map_pts", "gt_map_labels",
 )  # fmt: skip
 
 
@@ -61,11 +64,15 @@ def export_infos(
     for scenario_id in clips_for(root, split, split_name):
         with LogReader(Path(root) / "logs" / f"{scenario_id}.mcap") as log:
             clip = read_clip(log)
-            offset = common.global_offset(store.read_map(root, str(log.scenario_meta["map_id"])))
+            intersection_map = store.read_map(root, str(log.scenario_meta["map_id"]))
+            offset = common.global_offset(intersection_map)
+            elements = map_elements(intersection_map)
             frames = common.keyframes(clip.first_frame, clip.num_frames, keyframe_every)
             for k in range(len(frames)):
                 infos.append(
-                    _info(log, clip, frames, k, offset, Path(nuscenes_root), keyframe_every)
+                    _info(
+                        log, clip, frames, k, offset, elements, Path(nuscenes_root), keyframe_every
+                    )
                 )
                 if on_sample is not None:
                     on_sample(1)
@@ -82,6 +89,7 @@ def _info(
     frames: list[int],
     k: int,
     offset: NDArray[np.float64],
+    elements: MapElements,
     nuscenes_root: Path,
     stride: int,
 ) -> dict[str, Any]:
@@ -133,6 +141,11 @@ def _info(
             "cam_intrinsic": np.array(camera["intrinsic"]),
         }
     info.update(_boxes(clip, row, lidar_to_global, offset, stride))
+    lidar_to_map = lidar_to_global.copy()
+    lidar_to_map[:3, 3] -= offset
+    # nuScenes' LiDAR axes: the 60 m along the heading are its y, the 30 m across its x
+    map_points, map_classes = map_labels(elements, lidar_to_map, DEFAULT_PATCH_M[::-1])
+    info.update(gt_map_pts=map_points.astype(np.float32), gt_map_labels=map_classes)
     info.update(_ego(clip, row, lidar_to_global, lidar_to_ego, offset, stride))
     return info
 
