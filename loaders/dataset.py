@@ -33,6 +33,7 @@ from drivee2e_data.loaders.map_labels import (
     DEFAULT_PATCH_M,
     DEFAULT_POINTS,
     MapElements,
+    bev_segmentation,
     map_elements,
     map_labels,
 )
@@ -78,6 +79,8 @@ class DriveE2EDataset(Dataset):
         with_map: add the vector map labels `gt_map_pts` (K, map_points, 2) and
             `gt_map_labels` (K,) in the LiDAR frame, inside a patch of `map_patch_m` (along x,
             along y); needs the data root's `maps/<map_id>.json`.
+        bev_seg: (size in pixels, metres per pixel) to add `gt_bev_seg` (3, size, size) uint8
+            masks around the LiDAR: drivable area, lane lines, pedestrian crossings.
     """
 
     def __init__(
@@ -98,6 +101,7 @@ class DriveE2EDataset(Dataset):
         with_map: bool = True,
         map_patch_m: tuple[float, float] = DEFAULT_PATCH_M,
         map_points: int = DEFAULT_POINTS,
+        bev_seg: tuple[int, float] | None = None,
     ) -> None:
         self.root = Path(root)
         if decode not in DECODE_MODES:
@@ -111,6 +115,9 @@ class DriveE2EDataset(Dataset):
         self.queue_length, self.queue_stride_frames = queue_length, queue_stride_frames
         self.horizons = labels.Horizons.of(history_s, future_s)
         self.with_map, self.map_patch_m, self.map_points = with_map, map_patch_m, map_points
+        self.bev_seg = bev_seg
+        if bev_seg is not None and not with_map:
+            raise ValueError("bev_seg rasterises the map: it needs with_map=True")
         if split != "all" and split not in splits.SPLITS:
             raise ValueError(f"split {split!r}: expected one of {', '.join(splits.SPLITS)} or all")
         self.manifest = splits.split_path(self.root, split_name)
@@ -298,10 +305,14 @@ class DriveE2EDataset(Dataset):
     def _map_labels(
         self, info: dict[str, Any], lidar_to_world: NDArray[np.float64]
     ) -> dict[str, Any]:
-        points, classes = map_labels(
-            self.map_elements(info["map_id"]), lidar_to_world, self.map_patch_m, self.map_points
-        )
-        return {"gt_map_pts": _f32(points), "gt_map_labels": torch.from_numpy(classes)}
+        elements = self.map_elements(info["map_id"])
+        points, classes = map_labels(elements, lidar_to_world, self.map_patch_m, self.map_points)
+        result = {"gt_map_pts": _f32(points), "gt_map_labels": torch.from_numpy(classes)}
+        if self.bev_seg is not None:
+            size_px, resolution_m = self.bev_seg
+            layers = bev_segmentation(elements, lidar_to_world, int(size_px), float(resolution_m))
+            result["gt_bev_seg"] = torch.from_numpy(layers)
+        return result
 
     def _frame(
         self, log: LogReader, clip: ClipLabels, row: int, info: dict[str, Any]

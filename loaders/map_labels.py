@@ -11,13 +11,15 @@ From an `IntersectionMap` (world frame), once per map:
 
 Per sample the polylines are moved into the LiDAR frame, cut to a patch centred on the LiDAR
 (60 m along x, forward, by 30 m along y, as VAD's default), and every piece longer than
-`MIN_PIECE_M` is resampled to `points` points evenly spaced along it.
+`MIN_PIECE_M` is resampled to `points` points evenly spaced along it. `bev_segmentation`
+rasterises the same map around the LiDAR for UniAD-style BEV heads.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 import shapely
 from numpy.typing import NDArray
@@ -32,12 +34,18 @@ EDGE_TOLERANCE_M = 0.3  # a lane boundary this close to the road's edge is the e
 SAME_LINE_M = 0.2  # two lanes' boundaries this close (Hausdorff) are one divider
 
 
+BEV_LAYERS = ("drivable_area", "lane_line", "ped_crossing")  # gt_bev_seg channels
+
+
 @dataclass(frozen=True)
 class MapElements:
-    """An intersection's labelled polylines, world frame: `(N, 2)` arrays and class indices."""
+    """An intersection's labelled polylines `(N, 2)` with class indices, its road surface and
+    crosswalk outlines, world frame."""
 
     polylines_m: tuple[NDArray[np.float64], ...]
     labels: tuple[int, ...]
+    road: shapely.Geometry
+    crosswalks_m: tuple[NDArray[np.float64], ...]
 
 
 def map_elements(intersection_map: IntersectionMap) -> MapElements:
@@ -71,7 +79,10 @@ def map_elements(intersection_map: IntersectionMap) -> MapElements:
     for part in shapely.get_parts(edges):
         polylines.append(np.asarray(part.coords)[:, :2])
         labels.append(MAP_CLASSES.index("boundary"))
-    return MapElements(tuple(polylines), tuple(labels))
+    crossings = tuple(
+        np.asarray(c.polygon_m[:, :2], np.float64) for c in intersection_map.crosswalks
+    )
+    return MapElements(tuple(polylines), tuple(labels), road, crossings)
 
 
 def map_labels(
@@ -100,3 +111,37 @@ def map_labels(
     if not pieces:
         return np.zeros((0, points, 2)), np.zeros(0, np.int64)
     return np.stack(pieces), np.array(labels, np.int64)
+
+
+def bev_segmentation(
+    elements: MapElements,
+    lidar_to_world: NDArray[np.float64],
+    size_px: int,
+    resolution_m: float,
+) -> NDArray[np.uint8]:
+    """(3, size, size) 0/1 masks around the LiDAR, its x up the image and y to the left (row 0
+    is the farthest ahead, column 0 the farthest left): drivable area, lane lines (dividers and
+    road boundaries, one pixel wide), pedestrian crossings. A pixel covers `resolution_m`."""
+    rotation, origin = lidar_to_world[:2, :2], lidar_to_world[:2, 3]
+
+    def pixels(world_xy: NDArray[np.float64]) -> NDArray[np.int32]:
+        local = (np.asarray(world_xy)[:, :2] - origin) @ rotation
+        column = size_px / 2 - local[:, 1] / resolution_m
+        row = size_px / 2 - local[:, 0] / resolution_m
+        return np.round(np.column_stack([column, row]) * 16).astype(np.int32)  # 4 fractional bits
+
+    layers = np.zeros((3, size_px, size_px), np.uint8)
+    for polygon in shapely.get_parts(elements.road):
+        rings = [pixels(np.asarray(polygon.exterior.coords))]
+        cv2.fillPoly(layers[0], rings, 1, shift=4)
+        holes = [pixels(np.asarray(ring.coords)) for ring in polygon.interiors]
+        if holes:
+            cv2.fillPoly(layers[0], holes, 0, shift=4)
+    lines = [
+        pixels(p)
+        for p, label in zip(elements.polylines_m, elements.labels, strict=True)
+        if label != MAP_CLASSES.index("ped_crossing")
+    ]
+    cv2.polylines(layers[1], lines, False, 1, 1, shift=4)
+    cv2.fillPoly(layers[2], [pixels(c) for c in elements.crosswalks_m], 1, shift=4)
+    return layers

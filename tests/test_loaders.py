@@ -441,3 +441,31 @@ def test_map_labels_need_the_map_or_say_so(loader_root: Path, tmp_path: Path) ->
         DriveE2EDataset(root, "val")
     sample = DriveE2EDataset(root, "val", cameras=(), with_map=False)[0]
     assert "gt_map_pts" not in sample
+
+
+def test_bev_segmentation_agrees_with_the_map(loader_root: Path) -> None:
+    import shapely
+
+    from drivee2e_data.loaders.map_labels import map_elements
+
+    dataset = DriveE2EDataset(loader_root, "test", cameras=(), bev_seg=(160, 1.0))
+    sample = dataset[35]  # the junction and its crosswalks ahead
+    layers = sample["gt_bev_seg"].numpy()
+    assert layers.shape == (3, 160, 160) and layers.dtype == np.uint8
+    assert layers[0, 80, 80] == 1  # the LiDAR stands on the road
+    intersection_map = store.read_map(
+        loader_root, dataset.log_info[dataset.samples[0][0]]["map_id"]
+    )
+    elements = map_elements(intersection_map)
+    crossings = shapely.union_all([shapely.Polygon(c) for c in elements.crosswalks_m])
+    # pixel centres back in the world: row 0 is 80 m ahead, column 0 is 80 m to the left
+    rows, columns = np.mgrid[0:160, 0:160]
+    local = np.stack([80.0 - rows - 0.5, 80.0 - columns - 0.5], -1).reshape(-1, 2)
+    pose = (sample["ego2global"] @ sample["lidar2ego"]).numpy()
+    world = local @ pose[:2, :2].T + pose[:2, 3]
+    on_road = shapely.contains_xy(elements.road, world[:, 0], world[:, 1]).reshape(160, 160)
+    on_crossing = shapely.contains_xy(crossings, world[:, 0], world[:, 1]).reshape(160, 160)
+    assert on_road.sum() > 500 and on_crossing.sum() > 10
+    assert (layers[0] == on_road).mean() > 0.97  # only pixels on the road's edge may differ
+    assert (layers[2] == on_crossing).mean() > 0.99
+    assert layers[1].sum() > 50  # lane lines drawn
