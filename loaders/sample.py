@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.geometry import quaternion_from_rotation
+from drivee2e_data.geometry import quaternion_from_rotation, wrap_angle
 from drivee2e_data.loaders.clip import ClipLabels, FrameBoxes
 from drivee2e_data.sensors.ego_state import FUTURE_STRIDE_FRAMES, se3
 
@@ -54,9 +54,7 @@ def to_frame(pose: NDArray[np.float64], points_m: NDArray[np.float64]) -> NDArra
 
 def yaw_in(pose: NDArray[np.float64], yaw_world_rad: NDArray[np.float64]) -> NDArray[np.float64]:
     """World headings as headings in the frame of `pose` (rotation about z), wrapped."""
-    frame_yaw = np.arctan2(pose[1, 0], pose[0, 0])
-    angle = np.asarray(yaw_world_rad) - frame_yaw
-    return np.arctan2(np.sin(angle), np.cos(angle))
+    return wrap_angle(np.asarray(yaw_world_rad) - np.arctan2(pose[1, 0], pose[0, 0]))
 
 
 def rotate_in(pose: NDArray[np.float64], vectors_xy: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -125,3 +125,23 @@ def test_info_pickle_has_every_key_for_every_sample(
             positions[:, 1], sample["gt_ego_fut_trajs"][mask][:, 0].numpy(), atol=1e-3
         )
         assert info["prev"] == (infos[index - 1]["token"] if index else "")
+
+
+def test_map_masks_put_every_ego_pose_on_the_road(exported: Path) -> None:
+    """nuScenes map masks: 0.1 m pixels, the global origin at the lower-left corner."""
+    tables = exported / "v1.0-drivee2e"
+    logs = {r["token"]: r for r in json.loads((tables / "log.json").read_text())}
+    maps = {t: r for r in json.loads((tables / "map.json").read_text()) for t in r["log_tokens"]}
+    scenes = {r["token"]: r for r in json.loads((tables / "scene.json").read_text())}
+    samples = json.loads((tables / "sample.json").read_text())
+    sample_data = json.loads((tables / "sample_data.json").read_text())
+    poses = {r["token"]: r for r in json.loads((tables / "ego_pose.json").read_text())}
+    pose_of = {d["sample_token"]: poses[d["ego_pose_token"]] for d in sample_data}
+    on_road = 0
+    for sample in samples:
+        log_token = scenes[sample["scene_token"]]["log_token"]
+        mask = cv2.imread(str(exported / maps[log_token]["filename"]), cv2.IMREAD_GRAYSCALE)
+        x, y, _ = pose_of[sample["token"]]["translation"]
+        assert min(x, y) > 0 and logs[log_token]["drivee2e_global_offset_m"][0] > 0
+        on_road += int(mask[mask.shape[0] - 1 - int(y / 0.1), int(x / 0.1)] == 255)
+    assert on_road == len(samples)

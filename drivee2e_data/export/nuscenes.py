@@ -21,11 +21,13 @@ from typing import Any
 
 import cv2
 import numpy as np
+import shapely
 
 from drivee2e_data import splits, store
 from drivee2e_data.export import common
 from drivee2e_data.loaders.clip import CLASSES, ClipLabels, read_clip
 from drivee2e_data.loaders.dataset import cloud_rows
+from drivee2e_data.loaders.map_labels import map_elements
 from drivee2e_data.loaders.sample import ego_to_world
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
@@ -242,12 +244,12 @@ class _Tables:
                 np.int32
             )
 
-        polygons = [
-            np.vstack([lane.left_boundary_m, lane.right_boundary_m[::-1]])
-            for lane in intersection_map.lanes
-        ]
-        polygons += [area.polygon_m for area in intersection_map.drivable_areas]
-        cv2.fillPoly(mask, [pixels(p) for p in polygons], 255)
+        # the road surface as the map labels define it: one union, so overlapping lane
+        # polygons (in junctions) cannot cancel out as they would filled together
+        for polygon in shapely.get_parts(map_elements(intersection_map).road):
+            cv2.fillPoly(mask, [pixels(np.asarray(polygon.exterior.coords))], 255)
+            for hole in polygon.interiors:
+                cv2.fillPoly(mask, [pixels(np.asarray(hole.coords))], 0)
         path = self.folder / common.map_file(map_id)
         path.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(path), mask)
