@@ -224,6 +224,17 @@ def _out_of_order(folder: Path) -> None:
     write_csv(folder / "trajectories" / "scene_001.csv", rows)
 
 
+def _binary(folder: Path) -> None:
+    """A JPEG (or any binary file) given where the trajectory CSV belongs."""
+    path = folder / "trajectories" / "scene_001.csv"
+    path.write_bytes(bytes([0xFF, 0xD8, 0xFF, 0xE0]) + bytes(range(256)) * 8)
+
+
+def _cut_map(folder: Path) -> None:
+    path = folder / "maps" / "hdmap4.json"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
 def _dangling_map(folder: Path) -> None:
     write_hdmap(folder / "maps" / "hdmap4.json", bad_successor=True)
 
@@ -243,6 +254,11 @@ BAD = {
         r"scene_001.csv row 7: column 'timestamp' is out of order for track '100'",
     ),
     "empty file": (_empty, r"scene_001.csv: file is empty"),
+    "binary file": (
+        _binary,
+        r"scene_001.csv: not UTF-8 text \(byte \d+\); expected a CSV file",
+    ),
+    "cut map": (_cut_map, r"hdmap4.json: not valid JSON"),
     "missing lane": (
         _dangling_map,
         r"hdmap4.json: lane '3'.successors references lane '99', which the map lacks",

@@ -192,7 +192,7 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
     """An AV2 `log_map_archive_*.json` in the local frame."""
     try:
         document = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ScenarioFormatError(f"{path}: not a readable JSON map ({error})") from None
     for key in ("lane_segments", "pedestrian_crossings", "drivable_areas"):
         if key not in document:

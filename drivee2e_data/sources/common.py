@@ -246,13 +246,20 @@ def read_csv_rows(path: Path, required: Iterable[str]) -> tuple[list[str], list[
     error naming the file (and the column)."""
     if not path.is_file():
         raise ScenarioFormatError(f"{path}: file is missing")
-    with path.open(newline="", encoding="utf-8-sig") as stream:
-        reader = csv.DictReader(stream)
-        header = [name.strip() for name in (reader.fieldnames or [])]
-        if not header:
-            raise ScenarioFormatError(f"{path}: file is empty (no header row)")
-        reader.fieldnames = header
-        rows = list(reader)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as stream:
+            reader = csv.DictReader(stream)
+            header = [name.strip() for name in (reader.fieldnames or [])]
+            if not header:
+                raise ScenarioFormatError(f"{path}: file is empty (no header row)")
+            reader.fieldnames = header
+            rows = list(reader)
+    except UnicodeDecodeError as error:
+        raise ScenarioFormatError(
+            f"{path}: not UTF-8 text (byte {error.start}); expected a CSV file"
+        ) from None
+    except csv.Error as error:  # a field past csv's size limit (binary data without newlines)
+        raise ScenarioFormatError(f"{path}: not a readable CSV file ({error})") from None
     missing = [name for name in required if name not in header]
     if missing:
         raise ScenarioFormatError(
