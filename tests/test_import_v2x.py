@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivee2e_data import pipeline
+from drivee2e_data import pipeline, store
 from drivee2e_data.cli import main
 from drivee2e_data.errors import ScenarioFormatError
 from drivee2e_data.scenario import AgentClass, SignalState, SubScenario, TimeOfDay, Weather
@@ -235,10 +235,6 @@ def _cut_map(folder: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
-def _dangling_map(folder: Path) -> None:
-    write_hdmap(folder / "maps" / "hdmap4.json", bad_successor=True)
-
-
 BAD = {
     "missing column": (_drop_column, r"scene_001.csv: column 'theta' is missing"),
     "nan coordinate": (
@@ -259,10 +255,6 @@ BAD = {
         r"scene_001.csv: not UTF-8 text \(byte \d+\); expected a CSV file",
     ),
     "cut map": (_cut_map, r"hdmap4.json: not valid JSON"),
-    "missing lane": (
-        _dangling_map,
-        r"hdmap4.json: lane '3'.successors references lane '99', which the map lacks",
-    ),
 }
 
 
@@ -341,3 +333,27 @@ def test_interaction_tracks_and_map(tmp_path: Path):
     width = lane.left_boundary_m[0, 1] - lane.right_boundary_m[0, 1]
     assert width == pytest.approx(3.32, abs=0.02)
     assert lane.left_mark.pattern.value == "dashed" and len(result.intersection_map.kerbs) == 1
+
+
+def test_a_cropped_map_drops_references_outside_it_with_one_warning(
+    v2x_folder: Path, tmp_path: Path, capsys
+):
+    """A map cut to one site names lanes beyond the cut: dropped and counted, as every map
+    reader does (AV2's crops too), never a refused import."""
+    write_hdmap(v2x_folder / "maps" / "hdmap4.json", bad_successor=True)
+    summary = pipeline.import_source(tmp_path / "out", "v2x-seq", v2x_folder)
+    warnings = [w for w in summary.report.warnings if "outside the map crop" in w]
+    assert warnings == ["hdmap4.json: 1 lane references point outside the map crop; dropped"]
+    intersection_map = store.read_map(tmp_path / "out", summary.maps[0])
+    assert "99" not in intersection_map.lane("3").successors
+    assert main(["import", "v2x-seq", str(v2x_folder), "--out", str(tmp_path / "cli")]) == 0
+    assert capsys.readouterr().err.count("outside the map crop") == 1
+    # the DriveE2E clip importer reads the same maps the same way
+    write_csv(tmp_path / "STR_000.csv", trajectory_rows(extra=True))
+    (tmp_path / "route.xml").write_text(
+        '<routes><route scenario_csv_id="STR_000" ego_id="101"/></routes>'
+    )
+    clip = drivee2e_clip.import_clip(
+        tmp_path / "STR_000.csv", tmp_path / "route.xml", v2x_folder / "maps" / "hdmap4.json"
+    )
+    assert any("1 lane references point outside the map crop" in w for w in clip.report.warnings)

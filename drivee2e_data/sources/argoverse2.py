@@ -48,6 +48,7 @@ from drivee2e_data.sources.common import (
     ImportReport,
     geo_origin_of_utm,
     grid_between,
+    prune_lane_references,
     resample_track,
     time_of_day_at,
     utc_from_ns,
@@ -188,6 +189,14 @@ def _turn(centerline: NDArray) -> TurnDirection:
     return TurnDirection.STRAIGHT
 
 
+def _ids(values: Any) -> tuple[str, ...]:
+    return tuple(str(value) for value in (values or []))
+
+
+def _id(value: Any) -> str | None:
+    return None if value is None else str(value)
+
+
 def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -> IntersectionMap:
     """An AV2 `log_map_archive_*.json` in the local frame."""
     try:
@@ -198,8 +207,6 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
         if key not in document:
             raise ScenarioFormatError(f"{path}: key {key!r} is missing")
     segments = document["lane_segments"]
-    known = {str(k) for k in segments} | {str(v["id"]) for v in segments.values()}
-    dangling = 0
     lanes = []
     for key, segment in segments.items():
         where = f"{path} lane_segments[{key}]"
@@ -208,15 +215,6 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
             _points(segment["right_lane_boundary"], f"{where}.right_lane_boundary")
         )
         centre = centerline_between(left, right)
-
-        def inside(ids: Any) -> tuple[str, ...]:
-            nonlocal dangling
-            kept = tuple(str(i) for i in (ids or []) if str(i) in known)
-            dangling += len(ids or []) - len(kept)
-            return kept
-
-        def neighbour(value: Any) -> str | None:
-            return str(value) if value is not None and str(value) in known else None
 
         for side in ("left_lane_mark_type", "right_lane_mark_type"):
             if segment[side] not in MARKS:
@@ -233,14 +231,13 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
                 lane_type=LaneType(segment["lane_type"].lower()),
                 turn_direction=_turn(centre) if is_intersection else TurnDirection.NONE,
                 is_intersection=is_intersection,
-                predecessors=inside(segment.get("predecessors")),
-                successors=inside(segment.get("successors")),
-                left_neighbor=neighbour(segment.get("left_neighbor_id")),
-                right_neighbor=neighbour(segment.get("right_neighbor_id")),
+                predecessors=_ids(segment.get("predecessors")),
+                successors=_ids(segment.get("successors")),
+                left_neighbor=_id(segment.get("left_neighbor_id")),
+                right_neighbor=_id(segment.get("right_neighbor_id")),
             )
         )
-    if dangling:
-        report.warn(f"{path.name}: {dangling} lane references point outside the map crop; dropped")
+    lanes = prune_lane_references(lanes, path.name, report)
     crosswalks = tuple(
         Crosswalk(
             str(c["id"]),

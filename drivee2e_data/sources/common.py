@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from pyproj import Transformer
 
 from drivee2e_data.errors import ScenarioFormatError
-from drivee2e_data.hdmap import GeoOrigin
+from drivee2e_data.hdmap import GeoOrigin, Lane
 from drivee2e_data.scenario import (
     FRAME_PERIOD_NS,
     TRACK_ARRAYS,
@@ -236,6 +236,40 @@ def time_of_day_at(time_utc: datetime, longitude_deg: float) -> TimeOfDay:
 
 def utc_from_ns(t_ns: int) -> datetime:
     return datetime.fromtimestamp(t_ns / 1e9, tz=timezone.utc)
+
+
+# ---------------------------------------------------------------- maps
+
+
+def prune_lane_references(lanes: Sequence[Lane], source: str, report: ImportReport) -> list[Lane]:
+    """The lanes without their references to lanes the map lacks (predecessors, successors,
+    neighbours): a map cropped to one site names its neighbours' lanes. Every map reader drops
+    them the same way, with one warning counting them."""
+    known = {lane.lane_id for lane in lanes}
+    dropped = 0
+    pruned = []
+    for lane in lanes:
+        predecessors = tuple(i for i in lane.predecessors if i in known)
+        successors = tuple(i for i in lane.successors if i in known)
+        left = lane.left_neighbor if lane.left_neighbor in known else None
+        right = lane.right_neighbor if lane.right_neighbor in known else None
+        dropped += len(lane.predecessors) - len(predecessors)
+        dropped += len(lane.successors) - len(successors)
+        dropped += (lane.left_neighbor is not None and left is None) + (
+            lane.right_neighbor is not None and right is None
+        )
+        pruned.append(
+            replace(
+                lane,
+                predecessors=predecessors,
+                successors=successors,
+                left_neighbor=left,
+                right_neighbor=right,
+            )
+        )
+    if dropped:
+        report.warn(f"{source}: {dropped} lane references point outside the map crop; dropped")
+    return pruned
 
 
 # ---------------------------------------------------------------- reading tables

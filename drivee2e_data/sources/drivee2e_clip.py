@@ -103,7 +103,7 @@ def import_clip(clip_csv: Path, route_xml: Path, hdmap: Path) -> V2XImport:
     route = read_route(route_xml)
     _, first = read_csv_rows(clip_csv, ["intersect_id", *EXTRA_COLUMNS])
     map_id = map_id_of(first[0]["intersect_id"])
-    intersection_map = read_hdmap(hdmap, map_id)
+    intersection_map = read_hdmap(hdmap, map_id, report=report)
     offset = np.asarray(intersection_map.metadata["offset_m"])
     grid, tracks, extra = read_trajectories(clip_csv, offset, report, EXTRA_COLUMNS)
     ego_id = str(route["ego_id"])

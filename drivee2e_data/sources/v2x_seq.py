@@ -45,6 +45,7 @@ from drivee2e_data.sources.common import (
     geo_origin_of_utm,
     grid_between,
     number,
+    prune_lane_references,
     read_csv_rows,
     resample_track,
     time_of_day_at,
@@ -153,9 +154,13 @@ def _ids(value: Any, where: str) -> list[str]:
 
 
 def read_hdmap(
-    path: Path, map_id: str, offset_m: NDArray[np.float64] | None = None
+    path: Path,
+    map_id: str,
+    offset_m: NDArray[np.float64] | None = None,
+    report: ImportReport | None = None,
 ) -> IntersectionMap:
-    """A V2X-Seq `hdmap*.json`; coordinates minus `offset_m` (default: rounded lane mean)."""
+    """A V2X-Seq `hdmap*.json`; coordinates minus `offset_m` (default: rounded lane mean).
+    References to lanes outside the file (a crop) are dropped and counted in `report`."""
     path = Path(path)
     if not path.is_file():
         raise MapFormatError(f"{path}: file is missing")
@@ -205,6 +210,9 @@ def read_hdmap(
                 right_neighbor=(_ids(entry.get("r_neighbor_id"), where) or [None])[0],
             )
         )
+    lanes = prune_lane_references(
+        lanes, path.name, report if report is not None else ImportReport()
+    )
     stop_lines = []
     for stop_id, entry in (document.get("STOPLINE") or {}).items():
         line = _points(entry.get("centerline"), f"{path} STOPLINE[{stop_id}].centerline") - offset_m
@@ -404,7 +412,7 @@ def import_v2x_seq(trajectories: Path, lights: Path | None, hdmap: Path) -> V2XI
     trajectories = Path(trajectories)
     _, first = read_csv_rows(trajectories, ["intersect_id"])
     map_id = map_id_of(first[0]["intersect_id"])
-    intersection_map = read_hdmap(hdmap, map_id)
+    intersection_map = read_hdmap(hdmap, map_id, report=report)
     offset = np.asarray(intersection_map.metadata["offset_m"])
     grid, tracks, _ = read_trajectories(trajectories, offset, report)
     signals: list[SignalTimeline] = []
