@@ -171,7 +171,7 @@ class DriveE2EDataset(Dataset):
                 f"{log.path}: camera {missing[0]} was not collected (the log has "
                 f"{', '.join(log.cameras)})"
             )
-        lidar_to_ego = np.array(next(iter(log.rig["lidar"].values()))["sensor_to_ego"])
+        lidar_to_ego = log.lidar_to_ego
         cameras = {}
         for name in self.cameras:
             calibration = log.rig["cameras"][name]

@@ -98,9 +98,7 @@ def _info(
     t_ns = int(clip.t_ns[row])
     ego_to_global = labels.ego_to_world(clip, row)
     ego_to_global[:3, 3] += offset
-    lidar_to_ego = common.nuscenes_lidar_to_ego(
-        np.array(log.rig["lidar"]["LIDAR_TOP"]["sensor_to_ego"])
-    )
+    lidar_to_ego = common.nuscenes_lidar_to_ego(log.lidar_to_ego)
     lidar_to_global = ego_to_global @ lidar_to_ego
     token = common.token("sample", scenario_id, frame)
     info: dict[str, Any] = {

@@ -276,9 +276,7 @@ class _Tables:
                 "width": int(camera["width"]),
                 "height": int(camera["height"]),
             }
-        lidar = common.nuscenes_lidar_to_ego(
-            np.array(log.rig["lidar"]["LIDAR_TOP"]["sensor_to_ego"])
-        )
+        lidar = common.nuscenes_lidar_to_ego(log.lidar_to_ego)
         calibration["LIDAR_TOP"] = {
             "token": common.token("calibrated_sensor", scenario_id, "LIDAR_TOP"),
             "sensor_token": common.token("sensor", "LIDAR_TOP"),

@@ -86,6 +86,12 @@ class LogReader:
     def cameras(self) -> tuple[str, ...]:
         return tuple(self.rig["cameras"])
 
+    @property
+    def lidar_to_ego(self) -> NDArray[np.float64]:
+        """(4, 4) the LiDAR's pose in the ego frame, from the logged rig."""
+        (lidar,) = self.rig["lidar"].values()
+        return np.array(lidar["sensor_to_ego"], np.float64)
+
     def close(self) -> None:
         self._file.close()
 
