@@ -193,7 +193,7 @@ def _split_options(parser: argparse.ArgumentParser, default: str) -> None:
 
 def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
     """The split's samples without sensor data or map labels: what planners of the ego's
-    state and the metrics read (the map labels would cost a millisecond a sample for nothing)."""
+    state and the metrics read (map labels would be computed for every sample and never read)."""
     return DriveE2EDataset(args.data, args.split, args.split_name, cameras=(), with_map=False)
 
 
