@@ -187,3 +187,16 @@ def centerline_between(left_m: FloatArray, right_m: FloatArray) -> FloatArray:
         return np.stack([np.interp(fractions, s, points[:, d]) for d in range(points.shape[1])], -1)
 
     return 0.5 * (at(left_m) + at(right_m))
+
+
+def next_waypoint(
+    route_xy_m: FloatArray, position_xy_m: FloatArray, min_distance_m: float
+) -> FloatArray:
+    """(2,) the first route waypoint at least `min_distance_m` from `position_xy_m`, counting
+    from the waypoint nearest it (the route's last waypoint when none is that far).
+    `route_xy_m: (W >= 1, 2)`."""
+    route = np.asarray(route_xy_m, np.float64)
+    distance = np.hypot(*(route - np.asarray(position_xy_m, np.float64)).T)
+    nearest = int(np.argmin(distance))
+    ahead = np.flatnonzero(distance[nearest:] >= min_distance_m)
+    return route[nearest + ahead[0]] if len(ahead) else route[-1]

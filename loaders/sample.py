@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.geometry import quaternion_from_rotation, wrap_angle
+from drivee2e_data.geometry import next_waypoint, quaternion_from_rotation, wrap_angle
 from drivee2e_data.loaders.clip import ClipLabels, FrameBoxes
 from drivee2e_data.sensors.ego_state import FUTURE_STRIDE_FRAMES, se3
 
@@ -180,11 +180,7 @@ def target_point(clip: ClipLabels, row: int) -> NDArray[np.float64]:
     route = clip.route_xy_m
     if len(route) == 0:
         return np.zeros(2)
-    position = clip.ego_xyz_m[row, :2]
-    distance = np.hypot(*(route - position).T)
-    nearest = int(np.argmin(distance))
-    ahead = np.flatnonzero(distance[nearest:] >= TARGET_POINT_MIN_M)
-    waypoint = route[nearest + ahead[0]] if len(ahead) else route[-1]
+    waypoint = next_waypoint(route, clip.ego_xyz_m[row, :2], TARGET_POINT_MIN_M)
     return to_frame(ego_to_world(clip, row), np.append(waypoint, 0.0)[None])[0, :2]
 
 

@@ -15,7 +15,7 @@ import logging
 import os
 import pkgutil
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -186,6 +186,26 @@ class World:
         states = {s.signal_id: SignalState(int(s.states[frame])) for s in self.scenario.signals}
         self.twin.show(states)
         self.frame = frame
+
+    def show(
+        self,
+        placements: Mapping[str, tuple[float, float, float, float]],
+        signal_states: Mapping[str, SignalState],
+    ) -> None:
+        """A closed-loop step's scene: each actor in `placements` at (x, y, z of its box centre,
+        yaw), every other actor hidden, the signals at `signal_states`."""
+        for track_id, body in self.bodies.items():
+            placement = placements.get(track_id)
+            if placement is None:
+                orientation, position = [0, 0, 0, 1], [0.0, 0.0, HIDDEN_Z_M]
+            else:
+                x, y, z, yaw = placement
+                orientation = self.p.getQuaternionFromEuler([0.0, 0.0, float(yaw)])
+                position = [float(x), float(y), float(z)]
+            self.p.resetBasePositionAndOrientation(
+                body, position, orientation, physicsClientId=self.client
+            )
+        self.twin.show(dict(signal_states))
 
     def actor_pose(self, track_id: str) -> tuple[NDArray[np.float64], float]:
         """(x, y, z) and yaw of a drawn actor."""

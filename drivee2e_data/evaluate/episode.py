@@ -1,0 +1,353 @@
+"""One closed-loop episode at 10 Hz: the ego starts at its first logged pose and speed, the
+agent observes and acts, the kinematic bicycle moves, every other agent and signal follows its
+log (or IDM along its path with `reactive`), and the route's rules are checked at every step.
+
+Step k: the agent observes the scene at k from the ego's state at k; its action moves the ego
+to k+1; the checks compare the ego at k+1 with the scene at k+1. The episode ends when the
+route is complete or an infraction ends it (deviation, blocked, timeout, agent failure).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.evaluate.agent import (
+    Agent,
+    AgentFailure,
+    Observation,
+    Route,
+    Waypoints,
+    parse_action,
+)
+from drivee2e_data.evaluate.traffic import AgentPose, Traffic
+from drivee2e_data.geometry import next_waypoint, polyline_arclength
+from drivee2e_data.hdmap import IntersectionMap
+from drivee2e_data.metrics import closedloop as rules
+from drivee2e_data.metrics.closedloop import Event, Infraction, MapRules, Obstacle, RouteProgress
+from drivee2e_data.scenario import Scenario, SignalState
+from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion, to_ego_frame
+from drivee2e_data.sensors.imu_gnss import enu_to_wgs84
+from drivee2e_data.sim.vehicle import Bicycle, Control, VehicleState, WaypointController
+
+STEP_S = 0.1
+ROUTE_WAYPOINT_SPACING_M = 5.0
+TARGET_POINT_MIN_M = 10.0  # as the Dataset's target_point
+HISTORY_STEPS = 4  # 2 Hz history over 2 s, as the Dataset's default
+HISTORY_STRIDE = 5
+
+
+@dataclass(frozen=True)
+class EpisodeOptions:
+    reactive: bool = False
+    min_speed: bool = False  # LB2's minimum-speed penalty (off, as Bench2Drive)
+    removed_track_ids: frozenset[str] = frozenset()  # occlusion variants drop these agents
+
+
+@dataclass
+class StepRecord:
+    """What happened at one step, for recording and debugging."""
+
+    step: int
+    state: VehicleState
+    control: Control
+    agents: list[AgentPose]
+    planned_xy_m: NDArray[np.float64] | None
+
+
+@dataclass
+class EpisodeResult:
+    scenario_id: str
+    score: rules.EpisodeScore
+    steps: int
+    driven_m: float
+    route_length_m: float
+    off_road_percent: float
+    sim_seconds: float
+    wall_seconds: float
+    failure: str = ""
+    trace: list[StepRecord] = field(default_factory=list)
+
+
+def logged_route(motion: EgoMotion) -> NDArray[np.float64]:
+    """(T, 2) the logged rear-axle path: the route the ego must drive."""
+    return np.stack([motion.x_m, motion.y_m], -1)
+
+
+def make_route(scenario: Scenario, motion: EgoMotion, intersection_map: IntersectionMap) -> Route:
+    """The route an agent is given: logged path waypoints every 5 m, with the logged command at
+    the frame the driver passed each."""
+    xy = logged_route(motion)
+    s_frames = polyline_arclength(xy)
+    samples = np.append(np.arange(0.0, s_frames[-1], ROUTE_WAYPOINT_SPACING_M), s_frames[-1])
+    frames = np.minimum(np.searchsorted(s_frames, samples, side="left"), len(xy) - 1)
+    waypoints = xy[frames]
+    ground = np.column_stack([waypoints, motion.z_m[frames]])
+    behavior = scenario.behavior
+    return Route(
+        scenario_id=scenario.scenario_id,
+        waypoints_xy_m=waypoints,
+        commands=motion.command[frames].astype(np.int64),
+        waypoints_lat_lon_alt=enu_to_wgs84(ground, intersection_map.origin),
+        logged_path_txy=np.column_stack([(motion.t_ns - motion.t_ns[0]) * 1e-9, xy]),
+        category=behavior.category.value if behavior is not None else "",
+    )
+
+
+class Episode:
+    """Runs `agent` on one scenario. `world` (a `sim.world.World` showing the scenario) is
+    needed only when the agent asks for sensors."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        intersection_map: IntersectionMap,
+        agent: Agent,
+        options: EpisodeOptions = EpisodeOptions(),
+        world: Any = None,
+        map_rules: MapRules | None = None,
+        keep_trace: bool = False,
+    ) -> None:
+        self.scenario, self.map, self.agent, self.options = (
+            scenario,
+            intersection_map,
+            agent,
+            options,
+        )
+        self.world, self.keep_trace = world, keep_trace
+        route_lanes = scenario.route.lane_ids if scenario.route is not None else ()
+        self.rules = map_rules or MapRules(intersection_map, route_lanes)
+        self.motion = ego_motion(scenario)
+        self.route = make_route(scenario, self.motion, intersection_map)
+        size = self.motion.size_m
+        self.bicycle = Bicycle(float(size[0]), float(size[1]), self.motion.rear_axle_to_centre_m)
+        self.traffic = Traffic(scenario, options.reactive, options.removed_track_ids)
+        self.route_xy = logged_route(self.motion)
+        self.s_frames = polyline_arclength(self.route_xy)
+        self.route_waypoints = (
+            scenario.route.waypoints_xy_m
+            if scenario.route is not None
+            else self.route.waypoints_xy_m
+        )
+        self.observer = None
+        if tuple(agent.sensors):
+            from drivee2e_data.evaluate.observation import SensorObserver
+
+            if world is None:
+                raise ValueError(
+                    f"agent {agent.name!r} asks for sensors: the episode needs a world"
+                )
+            self.observer = SensorObserver(world, tuple(agent.sensors), agent.image_size)
+
+    def run(self) -> EpisodeResult:
+        start = time.perf_counter()
+        scenario, motion = self.scenario, self.motion
+        frames = scenario.num_frames
+        state = VehicleState(
+            float(motion.x_m[0]), float(motion.y_m[0]), float(motion.yaw_rad[0]),
+            float(motion.speed_mps[0]), steer_rad=float(motion.steer_rad[0]),
+        )  # fmt: skip
+        rig = self.observer.rig if self.observer is not None else None
+        events: list[Event] = []
+        failure = ""
+        try:
+            self.agent.setup(self.route, rig)
+        except AgentFailure as error:
+            failure = str(error)
+        except Exception as error:  # the agent's own code: its bug ends its episode only
+            failure = f"setup raised {type(error).__name__}: {error}"
+        progress = RouteProgress(self.route_xy)
+        controller = WaypointController()
+        max_steps = math.ceil(
+            (frames - 1) * rules.ROUTE_TIMEOUT_FACTOR + rules.ROUTE_TIMEOUT_MARGIN_S / STEP_S
+        )
+        late_step = (frames - 1) * (1 + rules.SCENARIO_TIMEOUT_SHARE) + (
+            rules.SCENARIO_TIMEOUT_MARGIN_S / STEP_S
+        )
+        blocked_steps = round(
+            (rules.longest_stop_s(motion.speed_mps) + rules.BLOCKED_MARGIN_S) / STEP_S
+        )
+        history: list[VehicleState] = [state]
+        poses = self.traffic.poses(
+            0, self.bicycle.centre_xy_m(state), state.yaw_rad, state.speed_mps, self._ego_lw()
+        )
+        hit_partners: set[str] = set()
+        red_lines: set[str] = set()
+        stopped = 0
+        driven = outside = off_road = 0.0
+        trace: list[StepRecord] = []
+        step = 0
+        while not failure:
+            observation = self._observe(step, state, history, poses, progress.progress_m)
+            try:
+                action = parse_action(self.agent.act(observation))
+            except AgentFailure as error:
+                failure = str(error)
+                break
+            except Exception as error:
+                failure = f"act raised {type(error).__name__}: {error}"
+                break
+            planned = None
+            if isinstance(action, Waypoints):
+                planned = action.xy_m
+                control = controller.control(action.xy_m, state)
+            else:
+                control = action
+            before = state
+            state = self.bicycle.step(state, control)
+            history.append(state)
+            step += 1
+            ego_centre = self.bicycle.centre_xy_m(state)
+            poses = self.traffic.poses(
+                step, ego_centre, state.yaw_rad, state.speed_mps, self._ego_lw()
+            )
+            if self.keep_trace:
+                trace.append(StepRecord(step - 1, before, control, poses, planned))
+            moved = float(np.hypot(*(state.xy_m - before.xy_m)))
+            driven += moved
+            # infractions at the new state
+            obstacles = [_obstacle(pose, self.traffic) for pose in poses] + self.rules.static
+            for partner in rules.colliding(
+                ego_centre, state.yaw_rad, self._ego_lw(), state.speed_mps, obstacles
+            ):
+                if partner.partner_id not in hit_partners:
+                    hit_partners.add(partner.partner_id)
+                    kind = rules.collision_kind(partner)
+                    klass = partner.agent_class.value if partner.agent_class else "static"
+                    events.append(Event(kind, step, partner.partner_id, klass))
+            signals = self._signals(step)
+            front_before = self._front(before)
+            for line_id in self.rules.red_lights_crossed(
+                front_before, self._front(state), state.yaw_rad, signals
+            ):
+                if line_id not in red_lines:
+                    red_lines.add(line_id)
+                    events.append(Event(Infraction.RED_LIGHT, step, line_id))
+            lane = self.rules.lane_status(ego_centre, state.yaw_rad)
+            if lane in ("off_road", "wrong_lane"):
+                outside += moved
+                off_road += moved if lane == "off_road" else 0.0
+            _reached, distance = progress.update(state.xy_m)
+            if progress.completion_percent >= 100.0:
+                if step > late_step:
+                    events.append(
+                        Event(Infraction.SCENARIO_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
+                    )
+                break
+            if distance > rules.ROUTE_DEVIATION_M:
+                events.append(
+                    Event(Infraction.ROUTE_DEVIATION, step, detail=f"{distance:.1f} m off")
+                )
+                break
+            stopped = stopped + 1 if state.speed_mps < rules.BLOCKED_SPEED_MPS else 0
+            if stopped > blocked_steps:
+                events.append(
+                    Event(
+                        Infraction.AGENT_BLOCKED, step, detail=f"stopped {stopped * STEP_S:.1f} s"
+                    )
+                )
+                break
+            if step >= max_steps:
+                events.append(
+                    Event(Infraction.ROUTE_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
+                )
+                break
+        if failure:
+            events.append(Event(Infraction.AGENT_FAILED, step, detail=failure))
+        length = progress.length_m
+        ratio = None
+        if self.options.min_speed and step > 0:
+            logged_speed = length / max(scenario.duration_s, STEP_S)
+            ratio = (progress.progress_m / (step * STEP_S)) / max(logged_speed, 1e-6)
+            if ratio < 1.0:
+                events.append(
+                    Event(Infraction.MIN_SPEED, step, detail=f"{100 * ratio:.0f}% of the log")
+                )
+        outside_percent = 100.0 * outside / max(length, 1e-6)
+        score = rules.score(progress.completion_percent, events, outside_percent, ratio)
+        return EpisodeResult(
+            scenario_id=scenario.scenario_id,
+            score=score,
+            steps=step,
+            driven_m=driven,
+            route_length_m=length,
+            off_road_percent=min(100.0, 100.0 * off_road / max(length, 1e-6)),
+            sim_seconds=step * STEP_S,
+            wall_seconds=time.perf_counter() - start,
+            failure=failure,
+            trace=trace,
+        )
+
+    def _ego_lw(self) -> tuple[float, float]:
+        return self.bicycle.length_m, self.bicycle.width_m
+
+    def _front(self, state: VehicleState) -> NDArray[np.float64]:
+        reach = self.bicycle.rear_axle_to_centre_m + 0.5 * self.bicycle.length_m
+        return state.xy_m + reach * np.array([np.cos(state.yaw_rad), np.sin(state.yaw_rad)])
+
+    def _signals(self, step: int) -> dict[str, SignalState]:
+        frame = min(step, self.scenario.num_frames - 1)  # after the log, lights keep their state
+        return {s.signal_id: s.state_at(frame) for s in self.scenario.signals}
+
+    def _observe(
+        self,
+        step: int,
+        state: VehicleState,
+        history: list[VehicleState],
+        poses: list[AgentPose],
+        progress_m: float,
+    ) -> Observation:
+        frame = int(np.searchsorted(self.s_frames, progress_m + 1e-6, side="right")) - 1
+        frame = min(max(frame, 0), self.scenario.num_frames - 1)
+        z = float(self.motion.z_m[frame])
+        rows = [step - HISTORY_STRIDE * k for k in range(HISTORY_STEPS, 0, -1)]
+        mask = np.array([r >= 0 for r in rows])
+        past = np.array([history[max(r, 0)].xy_m for r in rows])
+        history_xy = to_ego_frame(past, state.x_m, state.y_m, state.yaw_rad)
+        history_xy[~mask] = 0.0
+        lateral = state.speed_mps * state.yaw_rate_radps
+        acceleration = np.array([state.acceleration_mps2, lateral, 9.81])
+        angular = np.array([0.0, 0.0, state.yaw_rate_radps])
+        status = np.concatenate(
+            [acceleration, angular, [state.speed_mps, 0.0, 0.0], [state.steer_rad]]
+        )
+        target = next_waypoint(self.route_waypoints, state.xy_m, TARGET_POINT_MIN_M)
+        images: dict[str, bytes] = {}
+        lidar_points = None
+        if self.observer is not None:
+            images, lidar_points = self.observer.observe(
+                step, min(step, self.scenario.num_frames - 1), state, z, poses, self._signals(step)
+            )
+        return Observation(
+            step=step,
+            t_s=step * STEP_S,
+            xy_m=state.xy_m,
+            yaw_rad=state.yaw_rad,
+            lat_lon_alt=enu_to_wgs84(np.array([[state.x_m, state.y_m, z]]), self.map.origin)[0],
+            speed_mps=state.speed_mps,
+            imu_acceleration_mps2=acceleration,
+            imu_angular_velocity_radps=angular,
+            ego_status=status,
+            history_xy_m=history_xy,
+            history_mask=mask,
+            command=int(self.motion.command[frame]),
+            target_point_m=to_ego_frame(target[None], state.x_m, state.y_m, state.yaw_rad)[0],
+            images=images,
+            lidar_points=lidar_points,
+        )
+
+
+def _obstacle(pose: AgentPose, traffic: Traffic) -> Obstacle:
+    return Obstacle(
+        pose.track_id,
+        traffic.classes[pose.track_id],
+        np.array([pose.x_m, pose.y_m]),
+        pose.yaw_rad,
+        pose.length_m,
+        pose.width_m,
+    )
