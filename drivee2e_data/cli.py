@@ -11,12 +11,15 @@ from pathlib import Path
 from tqdm import tqdm
 
 from drivee2e_data import __version__, figures, openloop, pipeline, splits, store
-from drivee2e_data.agents import admlp
+from drivee2e_data.agents import admlp, registry
 from drivee2e_data.agents.constant_velocity import ConstantVelocity
+from drivee2e_data.agents.registry import AGENTS
 from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import BACKENDS
+from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError, LogFormatError
+from drivee2e_data.evaluate import runner, variants
 from drivee2e_data.export.infos import export_infos
 from drivee2e_data.export.nuscenes import export_nuscenes
 from drivee2e_data.loaders.dataset import DriveE2EDataset
@@ -95,6 +98,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     curate = commands.add_parser("curate", help="score tracks, choose egos, label behaviours")
     curate.add_argument("data", type=Path, help="data root")
+    curate.add_argument(
+        "--occlusion",
+        choices=("vehicle", "all"),
+        default=None,
+        help="instead: write the occlusion variant (agents never seen by the ego's cameras in "
+        "the collected logs removed: vehicles only, or every class) to DATA/variants/",
+    )
 
     scenarios = commands.add_parser(
         "scenarios", help="list and validate the scenarios of a data root"
@@ -177,6 +187,46 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument(
         "--nuscenes", type=Path, default=None, help="infos: the nuscenes export the paths name"
     )
+
+    evaluate = commands.add_parser(
+        "evaluate", help="closed loop: drive each clip of a split with an agent; SR and DS"
+    )
+    evaluate.add_argument("data", type=Path, help="data root (curated; logs for --variant)")
+    _split_options(evaluate, "val")
+    evaluate.add_argument(
+        "--agent", default="expert", help=f"{', '.join(AGENTS)}, or MODULE:CLASS (default expert)"
+    )
+    evaluate.add_argument(
+        "--agent-cmd", default=None, metavar="CMD", help="run the agent as this child process "
+        "(its own environment; protocol in drivee2e_data/evaluate/agent_client.py)",
+    )  # fmt: skip
+    evaluate.add_argument("--checkpoint", type=Path, default=None, help="the agent's checkpoint")
+    evaluate.add_argument(
+        "--reactive", action="store_true", help="vehicles follow their paths with IDM"
+    )
+    evaluate.add_argument("--variant", choices=[v.value for v in Variant], default="complete")
+    evaluate.add_argument(
+        "--min-speed",
+        action="store_true",
+        help="apply LB2's minimum-speed penalty (off by default)",
+    )
+    evaluate.add_argument("--workers", type=_positive, default=1, help="processes (default 1)")
+    evaluate.add_argument("--record", action="store_true", help="write RUN/records/<clip>.mcap")
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--renderer", choices=RENDERERS, default="auto")
+    evaluate.add_argument(
+        "--step-timeout",
+        type=float,
+        default=30.0,
+        help="seconds an --agent-cmd child may take a step",
+    )
+    evaluate.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="run folder (default DATA/results/AGENT-SPLIT-VARIANT)",
+    )
+    evaluate.add_argument("--only", nargs="+", default=None, metavar="ID", help="these clips only")
 
     logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
     logs.add_argument("data", type=Path, help="data root")
@@ -436,6 +486,8 @@ def _view(args: argparse.Namespace) -> int:
 def _curate(args: argparse.Namespace) -> int:
     if not (args.data / "scenarios").is_dir():
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
+    if args.occlusion is not None:
+        return _occlusion(args)
     with tqdm(unit="clip", desc="curating", disable=None) as bar:
         rows = pipeline.curate(args.data, on_scenario=lambda _: bar.update(1))
     header = ("scenario", "ego", "ego from", "behaviour", "dropped", "repaired")
@@ -453,6 +505,60 @@ def _curate(args: argparse.Namespace) -> int:
     _print_table(header, table)
     labelled = sum(r.behavior != "-" for r in rows)
     print(f"{len(rows)} clips curated, {labelled} labelled")
+    return 0
+
+
+def _occlusion(args: argparse.Namespace) -> int:
+    variant = Variant.OCC_VEHICLE if args.occlusion == "vehicle" else Variant.OCC_ALL
+    with tqdm(unit="clip", desc=f"{variant.value} variant", disable=None) as bar:
+        path, removed = variants.write_variant(args.data, variant, lambda _: bar.update(1))
+    rows = [(clip, str(len(ids))) for clip, ids in sorted(removed.items())]
+    _print_table(("scenario", "agents removed"), rows)
+    print(
+        f"{sum(len(v) for v in removed.values())} agents removed over {len(removed)} clips: {path}"
+    )
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    if args.agent_cmd is None:
+        registry.resolve(args.agent)  # a bad name fails here, not in every episode
+    options = runner.EvaluationOptions(
+        agent=args.agent,
+        checkpoint=str(args.checkpoint) if args.checkpoint else None,
+        agent_cmd=args.agent_cmd,
+        reactive=args.reactive,
+        variant=args.variant,
+        min_speed=args.min_speed,
+        record=args.record,
+        seed=args.seed,
+        renderer=args.renderer,
+        step_timeout_s=args.step_timeout,
+    )
+    manifest = splits.split_path(args.data, args.split_name)
+    if not manifest.is_file():
+        raise DriveE2EError(f"{manifest}: no split manifest; run drivee2e split {args.data}")
+    if args.split == "all":
+        clips = [row.scenario_id for row in splits.read_manifest(manifest)]
+    else:
+        clips = splits.scenario_ids(manifest, args.split)
+    if args.only:
+        clips = [c for c in clips if c in set(args.only)]
+    if not clips:
+        raise DriveE2EError(f"{manifest}: split {args.split!r} has no clips to evaluate")
+    out = args.out or args.data / runner.RESULTS_FOLDER / runner.run_name(options, args.split)
+    with tqdm(total=len(clips), unit="episode", desc="evaluating", disable=None) as bar:
+        bar.update(len(clips) - len(runner.prepare_run(out, options, clips)))
+
+        def done(row: dict) -> None:
+            bar.update(1)
+            if row.get("status") in ("error", "agent_failed"):
+                bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
+
+        rows = runner.evaluate(args.data, clips, options, out, args.workers, done)
+    summary = runner.write_results(out, rows, options)
+    print(runner.markdown_table(summary), end="")
+    print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")
     return 0
 
 
@@ -520,6 +626,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "predict": _predict,
         "openloop": _openloop,
         "export": _export,
+        "evaluate": _evaluate,
     }
     try:
         return handlers[args.command](args)

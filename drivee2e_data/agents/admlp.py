@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate.agent import Observation, Waypoints
 from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 
@@ -201,3 +202,39 @@ def load(path: Path) -> ADMLP:
     model = ADMLP(saved["inputs"], saved["steps"])
     model.load_state_dict(saved["model"])
     return model
+
+
+class ADMLPAgent:
+    """AD-MLP in closed loop: the observation's ego history, status and command through a
+    trained checkpoint to waypoints. No sensors are rendered for it."""
+
+    name = "admlp"
+    sensors: tuple[str, ...] = ()
+    image_size = None
+
+    def __init__(self, checkpoint: Path | None = None) -> None:
+        if checkpoint is None:
+            raise DriveE2EError("agent admlp needs --checkpoint (drivee2e train admlp writes one)")
+        self.model = load(Path(checkpoint))
+        history_steps = (int(self.model.mean.shape[0]) - 13) // 3
+        if history_steps != 4:
+            raise DriveE2EError(
+                f"{checkpoint}: trained with {history_steps} history steps; closed loop serves 4 "
+                "(2 s at 2 Hz, the Dataset's default)"
+            )
+
+    def setup(self, route: object, rig: object) -> None:
+        del route, rig  # AD-MLP sees only the ego's own state
+
+    def act(self, observation: Observation) -> Waypoints:
+        command = torch.zeros(1, 3)
+        command[0, int(observation.command) - 1] = 1.0
+        batch = {
+            "gt_ego_his_trajs": torch.as_tensor(observation.history_xy_m, dtype=torch.float32)[
+                None
+            ],
+            "gt_ego_his_masks": torch.as_tensor(observation.history_mask)[None],
+            "ego_status": torch.as_tensor(observation.ego_status, dtype=torch.float32)[None],
+            "gt_ego_fut_cmd": command,
+        }
+        return Waypoints(self.model.plan(batch)[0].numpy())

@@ -1,0 +1,378 @@
+"""A closed-loop evaluation of one agent over the clips of a split: one episode per clip, in
+worker processes when asked, each episode's result written atomically as it finishes
+(`RUN/episodes/<scenario_id>.json`), so a killed run resumes with the episodes it lacks; then
+`RUN/episodes.parquet`, `RUN/summary.json` and `RUN/table.md`.
+
+A worker builds its agent once (a `--agent-cmd` child once, again after a failure) and keeps
+the pybullet world of its last map for the next clip on it; agents that ask for no sensors run
+without pybullet at all.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import random
+import resource
+import signal
+import sys
+import time
+import zlib
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from drivee2e_data import store
+from drivee2e_data.curation.occlusion import Variant
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
+from drivee2e_data.evaluate.variants import read_variant
+from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
+
+RESULTS_FOLDER = "results"
+EPISODES_FOLDER = "episodes"
+RECORDS_FOLDER = "records"
+COUNTED = tuple(i for i in Infraction if i is not Infraction.OUTSIDE_ROUTE_LANES)
+
+
+@dataclass(frozen=True)
+class EvaluationOptions:
+    agent: str = "expert"
+    checkpoint: str | None = None
+    agent_cmd: str | None = None
+    reactive: bool = False
+    variant: str = Variant.COMPLETE.value
+    min_speed: bool = False
+    record: bool = False
+    seed: int = 0
+    renderer: str = "auto"
+    step_timeout_s: float = 30.0
+
+    def identity(self) -> dict[str, Any]:
+        """What makes two runs the same run (recording and timeouts do not change scores)."""
+        document = asdict(self)
+        for key in ("record", "renderer", "step_timeout_s"):
+            document.pop(key)
+        return document
+
+
+def run_name(options: EvaluationOptions, split: str) -> str:
+    agent = "remote" if options.agent_cmd else options.agent.replace(":", ".")
+    traffic = "-reactive" if options.reactive else ""
+    return f"{agent}-{split}-{options.variant}{traffic}"
+
+
+def prepare_run(out: Path, options: EvaluationOptions, scenario_ids: list[str]) -> list[str]:
+    """Create or reopen the run folder; the clips still without a result."""
+    out.mkdir(parents=True, exist_ok=True)
+    run_file = out / "run.json"
+    identity = options.identity()
+    if run_file.is_file():
+        previous = json.loads(run_file.read_text())
+        if previous != identity:
+            raise DriveE2EError(
+                f"{run_file}: this folder holds a run with other options ({previous}); "
+                "choose another --out or delete it"
+            )
+    else:
+        store.write_bytes_atomic(run_file, json.dumps(identity, indent=1, sort_keys=True).encode())
+    done = {p.stem for p in (out / EPISODES_FOLDER).glob("*.json")}
+    return [s for s in scenario_ids if s not in done]
+
+
+# -- one episode, in whichever process runs it ------------------------------------------------
+
+_agent: Any = None
+_world: Any = None
+
+
+def _agent_for(options: EvaluationOptions) -> Any:
+    global _agent
+    if _agent is None:
+        if options.agent_cmd:
+            from drivee2e_data.evaluate.remote import RemoteAgent
+
+            _agent = RemoteAgent(options.agent_cmd, step_timeout_s=options.step_timeout_s)
+        else:
+            from drivee2e_data.agents.registry import build
+
+            checkpoint = Path(options.checkpoint) if options.checkpoint else None
+            _agent = build(options.agent, checkpoint)
+    return _agent
+
+
+def _world_for(root: Path, scenario: Any, renderer: str) -> Any:
+    global _world
+    from drivee2e_data.sim.world import World
+
+    if _world is not None and _world.intersection_map.map_id != scenario.map_id:
+        _world.close()
+        _world = None
+    if _world is None:
+        _world = World(store.read_map(root, scenario.map_id), scenario, renderer=renderer)
+    else:
+        _world.replay(scenario)
+    return _world
+
+
+def close_process_state() -> None:
+    global _agent, _world
+    if _agent is not None and hasattr(_agent, "close"):
+        _agent.close()
+    if _world is not None:
+        _world.close()
+    _agent = _world = None
+
+
+def _seed(seed: int, scenario_id: str) -> None:
+    value = zlib.crc32(f"{seed}/{scenario_id}".encode())
+    random.seed(value)
+    np.random.seed(value)  # noqa: NPY002 (a user's agent may draw from the global generator)
+    if "torch" in sys.modules:
+        sys.modules["torch"].manual_seed(value)
+
+
+def evaluate_clip(
+    root: Path, scenario_id: str, options: EvaluationOptions, out: Path
+) -> dict[str, Any]:
+    """Run one episode and write its row; an agent failure is a result, a broken clip is a row
+    with status 'error'."""
+    start = time.perf_counter()
+    row: dict[str, Any]
+    try:
+        scenario = store.read_scenario(root, scenario_id)
+        intersection_map = store.read_map(root, scenario.map_id)
+        removed = read_variant(root, Variant(options.variant)).get(scenario_id)
+        if removed is None and options.variant != Variant.COMPLETE.value:
+            raise DriveE2EError(
+                f"clip {scenario_id} has no {options.variant} variant; curate again"
+            )
+        agent = _agent_for(options)
+        world = _world_for(root, scenario, options.renderer) if tuple(agent.sensors) else None
+        _seed(options.seed, scenario_id)
+        episode = Episode(
+            scenario,
+            intersection_map,
+            agent,
+            EpisodeOptions(options.reactive, options.min_speed, removed or frozenset()),
+            world=world,
+            keep_trace=options.record,
+        )
+        result = episode.run()
+        if options.record:
+            from drivee2e_data.evaluate.record import write_record
+
+            write_record(out / RECORDS_FOLDER / f"{scenario_id}.mcap", scenario, intersection_map,
+                         result, episode.route_xy, episode.bicycle)  # fmt: skip
+        row = result_row(scenario, result, options, len(removed or ()))
+    except DriveE2EError as error:
+        row = {"scenario_id": scenario_id, "status": "error", "failure": str(error)}
+    row["wall_seconds"] = time.perf_counter() - start
+    row["peak_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    store.write_bytes_atomic(
+        out / EPISODES_FOLDER / f"{scenario_id}.json", json.dumps(row, sort_keys=True).encode()
+    )
+    return row
+
+
+def result_row(
+    scenario: Any, result: EpisodeResult, options: EvaluationOptions, removed: int
+) -> dict[str, Any]:
+    score = result.score
+    behavior = scenario.behavior
+    row: dict[str, Any] = {
+        "scenario_id": scenario.scenario_id,
+        "map_id": scenario.map_id,
+        "category": behavior.category.value if behavior else "",
+        "sub_scenario": behavior.sub_scenario.value if behavior else "",
+        "agent": options.agent if not options.agent_cmd else f"remote:{options.agent_cmd}",
+        "variant": options.variant,
+        "reactive": options.reactive,
+        "seed": options.seed,
+        "status": score.status,
+        "success": score.success,
+        "route_completion": score.route_completion,
+        "penalty": score.penalty,
+        "driving_score": score.driving_score,
+        "outside_lanes_percent": score.outside_lanes_percent,
+        "off_road_percent": result.off_road_percent,
+        "driven_m": result.driven_m,
+        "route_length_m": result.route_length_m,
+        "steps": result.steps,
+        "sim_seconds": result.sim_seconds,
+        "episode_seconds": result.wall_seconds,
+        "removed_agents": removed,
+        "failure": result.failure,
+        "events": json.dumps(
+            [
+                {
+                    "infraction": e.infraction.value,
+                    "frame": e.frame,
+                    "partner_id": e.partner_id,
+                    "detail": e.detail,
+                }
+                for e in score.events
+            ]
+        ),
+    }
+    for infraction in COUNTED:
+        row[infraction.value] = score.count(infraction)
+    return row
+
+
+# -- the whole run ----------------------------------------------------------------------------
+
+
+def evaluate(
+    root: Path,
+    scenario_ids: list[str],
+    options: EvaluationOptions,
+    out: Path,
+    workers: int = 1,
+    on_episode: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Evaluate the clips without a result yet; returns every clip's row (old and new)."""
+    pending = prepare_run(out, options, scenario_ids)
+    if workers <= 1 or len(pending) <= 1:
+        try:
+            for scenario_id in pending:
+                row = evaluate_clip(root, scenario_id, options, out)
+                if on_episode is not None:
+                    on_episode(row)
+        finally:
+            close_process_state()
+    else:
+        _run_pool(root, pending, options, out, workers, on_episode)
+    return read_rows(out, scenario_ids)
+
+
+def _init_worker() -> None:
+    os.environ.setdefault("LP_NUM_THREADS", "1")  # one llvmpipe thread per worker process
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _run_pool(
+    root: Path,
+    pending: list[str],
+    options: EvaluationOptions,
+    out: Path,
+    workers: int,
+    on_episode: Callable[[dict[str, Any]], None] | None,
+) -> None:
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
+    try:
+        futures: dict[Future, str] = {
+            pool.submit(evaluate_clip, root, s, options, out): s for s in pending
+        }
+        remaining = set(futures)
+        while remaining:
+            done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    row = future.result()
+                except BrokenProcessPool:
+                    row = {"scenario_id": futures[future], "status": "error",
+                           "failure": "the worker process died"}  # fmt: skip
+                if on_episode is not None:
+                    on_episode(row)
+    except BaseException:
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.terminate()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def read_rows(out: Path, scenario_ids: list[str]) -> list[dict[str, Any]]:
+    rows = []
+    for scenario_id in scenario_ids:
+        path = out / EPISODES_FOLDER / f"{scenario_id}.json"
+        if path.is_file():
+            rows.append(json.loads(path.read_text()))
+    return rows
+
+
+def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """SR, DS, RC, infractions per km, SR per behaviour category, seconds per scene."""
+    scored = [r for r in rows if r.get("status") != "error"]
+    count = len(scored)
+    if count == 0:
+        return {"episodes": 0, "errors": len(rows)}
+    km = sum(r["driven_m"] for r in scored) / 1000.0
+    per_km = {
+        i.value: sum(r[i.value] for r in scored) / max(km, 1e-9)
+        for i in (*PENALTY, Infraction.ROUTE_DEVIATION, Infraction.AGENT_BLOCKED)
+    }
+    categories: dict[str, list[bool]] = {}
+    for r in scored:
+        categories.setdefault(r["category"] or "-", []).append(bool(r["success"]))
+    return {
+        "episodes": count,
+        "errors": len(rows) - count,
+        "success_rate": 100.0 * sum(bool(r["success"]) for r in scored) / count,
+        "driving_score": float(np.mean([r["driving_score"] for r in scored])),
+        "route_completion": float(np.mean([r["route_completion"] for r in scored])),
+        "penalty": float(np.mean([r["penalty"] for r in scored])),
+        "collisions": sum(r[i.value] for r in scored for i in COLLISIONS),
+        "infractions_per_km": per_km,
+        "agent_failures": sum(r[Infraction.AGENT_FAILED.value] for r in scored),
+        "driven_km": km,
+        "seconds_per_scene": float(np.mean([r["wall_seconds"] for r in scored])),
+        "sim_seconds_per_scene": float(np.mean([r["sim_seconds"] for r in scored])),
+        "success_rate_per_category": {
+            name: 100.0 * sum(v) / len(v) for name, v in sorted(categories.items())
+        },
+        "episodes_per_category": {name: len(v) for name, v in sorted(categories.items())},
+    }
+
+
+def write_results(
+    out: Path, rows: list[dict[str, Any]], options: EvaluationOptions
+) -> dict[str, Any]:
+    """episodes.parquet, summary.json and table.md of a finished run."""
+    summary = {"options": options.identity(), **summarize(rows)}
+    if rows:
+        columns = sorted({key for row in rows for key in row})
+        table = pa.Table.from_pylist([{c: row.get(c) for c in columns} for row in rows])
+        path = out / "episodes.parquet"
+        partial = path.with_name(f".{path.name}.partial")
+        pq.write_table(table, partial)
+        partial.replace(path)
+    store.write_bytes_atomic(out / "summary.json", json.dumps(summary, indent=1).encode())
+    store.write_bytes_atomic(out / "table.md", markdown_table(summary).encode())
+    return summary
+
+
+def markdown_table(summary: dict[str, Any]) -> str:
+    options = summary["options"]
+    agent = f"remote `{options['agent_cmd']}`" if options.get("agent_cmd") else options["agent"]
+    traffic = "reactive (IDM)" if options["reactive"] else "log replay"
+    lines = [f"# {agent}, {options['variant']}, {traffic}", ""]
+    if not summary.get("episodes"):
+        return "\n".join([*lines, "no episode scored", ""])
+    per_km = summary["infractions_per_km"]
+    lines += [
+        "| episodes | SR % | DS | RC % | collisions/km | red lights/km | s/scene |",
+        "|---|---|---|---|---|---|---|",
+        f"| {summary['episodes']} | {summary['success_rate']:.1f} | {summary['driving_score']:.2f} "
+        f"| {summary['route_completion']:.1f} "
+        f"| {sum(per_km[i.value] for i in COLLISIONS):.2f} | {per_km['red_light']:.2f} "
+        f"| {summary['seconds_per_scene']:.2f} |",
+        "",
+        "| category | episodes | SR % |",
+        "|---|---|---|",
+    ]
+    for name, rate in summary["success_rate_per_category"].items():
+        lines.append(f"| {name} | {summary['episodes_per_category'][name]} | {rate:.1f} |")
+    lines += ["", "| infraction | per km |", "|---|---|"]
+    lines += [f"| {name} | {value:.2f} |" for name, value in per_km.items()]
+    return "\n".join(lines) + "\n"
