@@ -11,9 +11,10 @@ from pathlib import Path
 from tqdm import tqdm
 
 from drivee2e_data import __version__, figures, openloop, pipeline, splits, store
-from drivee2e_data.agents import admlp, registry
+from drivee2e_data.agents import admlp, camera, registry
 from drivee2e_data.agents.constant_velocity import ConstantVelocity
 from drivee2e_data.agents.registry import AGENTS
+from drivee2e_data.agents.training import TrainOptions
 from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import BACKENDS
@@ -30,7 +31,7 @@ from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sim.world import RENDERERS
 
-PLANNERS = ("constant-velocity", "admlp")
+PLANNERS = ("constant-velocity", "admlp", "camera")
 CLASS_ABBREVIATION = {
     AgentClass.CAR: "car",
     AgentClass.VAN: "van",
@@ -143,12 +144,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     train = commands.add_parser("train", help="train a baseline planner on a split")
-    train.add_argument("model", choices=("admlp",), help="which baseline")
+    train.add_argument("model", choices=("admlp", "camera"), help="which baseline")
     train.add_argument("data", type=Path, help="data root (collected, split)")
     _split_options(train, "train")
     train.add_argument("--out", type=Path, required=True, help="checkpoint to write (resumes)")
-    train.add_argument("--epochs", type=_positive, default=60)
-    train.add_argument("--batch-size", type=_positive, default=64)
+    train.add_argument(
+        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 12"
+    )
+    train.add_argument(
+        "--batch-size", type=_positive, default=None, help="default: admlp 64, camera 32"
+    )
     train.add_argument("--learning-rate", type=float, default=1e-3)
     train.add_argument("--seed", type=int, default=0)
 
@@ -248,39 +253,51 @@ def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
 
 
 def _train(args: argparse.Namespace) -> int:
-    dataset = _labels_only(args)
-    options = admlp.TrainOptions(args.epochs, args.batch_size, args.learning_rate, args.seed)
+    epochs = args.epochs or (60 if args.model == "admlp" else 12)
+    batch_size = args.batch_size or (64 if args.model == "admlp" else 32)
+    options = TrainOptions(epochs, batch_size, args.learning_rate, args.seed)
+    if args.model == "camera":
+        dataset, trainer = camera.dataset_for(args.data, args.split, args.split_name), camera.train
+    else:
+        dataset, trainer = _labels_only(args), admlp.train
     with (
         tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,
-        tqdm(total=args.epochs, unit="epoch", desc="training admlp", disable=None) as epochs,
+        tqdm(total=epochs, unit="epoch", desc=f"training {args.model}", disable=None) as bar,
     ):
 
         def on_epoch(epoch: int, loss: float) -> None:
-            epochs.n = epoch
-            epochs.set_postfix(loss=f"{loss:.3f}")
-            epochs.refresh()
+            bar.n = epoch
+            bar.set_postfix(loss=f"{loss:.3f}")
+            bar.refresh()
 
-        saved = admlp.train(dataset, args.out, options, on_epoch, reading.update)
+        saved = trainer(dataset, args.out, options, on_epoch, reading.update)
     print(
-        f"admlp: {saved['samples']} samples, {saved['epoch']} epochs, final L1 loss "
+        f"{args.model}: {saved['samples']} samples, {saved['epoch']} epochs, final L1 loss "
         f"{saved['losses'][-1]:.3f} m; wrote {args.out}"
     )
     return 0
 
 
 def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    if args.model == "admlp":
+    if args.model in ("admlp", "camera"):
         if args.checkpoint is None:
             raise DriveE2EError(
-                "--model admlp needs --checkpoint (drivee2e train admlp writes one)"
+                f"--model {args.model} needs --checkpoint (drivee2e train {args.model} writes one)"
             )
-        return admlp.load(args.checkpoint)
+        return (
+            admlp.load(args.checkpoint)
+            if args.model == "admlp"
+            else camera.CameraPlanner(args.checkpoint)
+        )
     return ConstantVelocity()
 
 
 def _predict(args: argparse.Namespace) -> int:
     planner = _planner(args)
-    dataset = _labels_only(args)
+    if args.model == "camera":
+        dataset = camera.dataset_for(args.data, args.split, args.split_name)
+    else:
+        dataset = _labels_only(args)
     with tqdm(
         total=len(dataset), unit="sample", desc=f"planning ({args.model})", disable=None
     ) as bar:

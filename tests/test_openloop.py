@@ -17,6 +17,7 @@ import torch.distributed as dist
 import torch.multiprocessing as mp
 
 from drivee2e_data.agents import admlp
+from drivee2e_data.agents.training import TrainOptions
 from drivee2e_data.cli import main
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.loaders import DriveE2EDataset, collate
@@ -238,7 +239,7 @@ def test_bad_predictions_name_file_and_row(loader_root: Path, tmp_path: Path, ca
 
 def test_admlp_trains_deterministically_and_resumes(loader_root: Path, tmp_path: Path) -> None:
     dataset = DriveE2EDataset(loader_root, "train", cameras=())
-    options = admlp.TrainOptions(epochs=30, batch_size=8, seed=1)
+    options = TrainOptions(epochs=30, batch_size=8, seed=1)
     first = admlp.train(dataset, tmp_path / "a.pt", options)
     again = admlp.train(dataset, tmp_path / "b.pt", options)
     assert first["losses"] == again["losses"]
@@ -246,13 +247,13 @@ def test_admlp_trains_deterministically_and_resumes(loader_root: Path, tmp_path:
     for key, value in first["model"].items():
         assert torch.equal(value, again["model"][key])
     # a run cut short after 10 epochs resumes to the same weights as one uninterrupted run
-    admlp.train(dataset, tmp_path / "c.pt", admlp.TrainOptions(epochs=10, batch_size=8, seed=1))
+    admlp.train(dataset, tmp_path / "c.pt", TrainOptions(epochs=10, batch_size=8, seed=1))
     resumed = admlp.train(dataset, tmp_path / "c.pt", options)
     assert resumed["losses"] == pytest.approx(first["losses"])
     for key, value in first["model"].items():
         assert torch.allclose(value, resumed["model"][key])
     with pytest.raises(DriveE2EError, match="made with other options"):
-        admlp.train(dataset, tmp_path / "a.pt", admlp.TrainOptions(epochs=30, batch_size=4, seed=1))
+        admlp.train(dataset, tmp_path / "a.pt", TrainOptions(epochs=30, batch_size=4, seed=1))
 
 
 def test_cli_trains_admlp_and_scores_it(loader_root: Path, tmp_path: Path) -> None:

@@ -10,15 +10,15 @@ larger `epochs` continues training; the result equals one uninterrupted run).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
+from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Waypoints
 from drivee2e_data.loaders.collate import collate
@@ -26,14 +26,6 @@ from drivee2e_data.loaders.dataset import DriveE2EDataset
 
 HIDDEN = 512
 MIN_SCALE = 0.1
-
-
-@dataclass(frozen=True)
-class TrainOptions:
-    epochs: int = 60
-    batch_size: int = 64
-    learning_rate: float = 1e-3
-    seed: int = 0
 
 
 def features(batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -103,11 +95,12 @@ def extract(
 def train(
     dataset: DriveE2EDataset,
     checkpoint: Path,
-    options: TrainOptions = TrainOptions(),
+    options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (built with `cameras=()`); returns the checkpoint."""
+    options = options or TrainOptions()
     if len(dataset) == 0:
         raise DriveE2EError(
             f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
@@ -121,80 +114,12 @@ def train(
     continuous = continuous_features(dataset.horizons.history_steps)
     model.mean[continuous] = data["x"][:, continuous].mean(0)
     model.scale[continuous] = data["x"][:, continuous].std(0).clamp_min(MIN_SCALE)
-    optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
-    state = {"epoch": 0, "losses": []}
-    if checkpoint.is_file():
-        saved = load_checkpoint(checkpoint)
-        same = {k: v for k, v in saved["options"].items() if k != "epochs"} == {
-            k: v for k, v in asdict(options).items() if k != "epochs"
-        }
-        if not same or saved["samples"] != len(dataset):
-            raise DriveE2EError(
-                f"{checkpoint}: made with other options or data ({saved['options']}, "
-                f"{saved['samples']} samples); delete it or choose another --out"
-            )
-        model.load_state_dict(saved["model"])
-        optimiser.load_state_dict(saved["optimiser"])
-        state = {"epoch": saved["epoch"], "losses": saved["losses"]}
-        if state["epoch"] >= options.epochs:
-            return saved
-    generator = torch.Generator().manual_seed(options.seed)
-    for epoch in range(options.epochs):
-        order = torch.randperm(len(data["x"]), generator=generator)  # drawn every epoch: resumable
-        if epoch < state["epoch"]:
-            continue
-        model.train()
-        total, count = 0.0, 0
-        for start in range(0, len(order), options.batch_size):
-            rows = order[start : start + options.batch_size]
-            mask = data["mask"][rows].float()[..., None]
-            error = (model(data["x"][rows]) - data["y"][rows]).abs() * mask
-            loss = error.sum() / mask.sum().clamp_min(1.0) / 2
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            total, count = total + loss.item() * len(rows), count + len(rows)
-        state["epoch"], state["losses"] = epoch + 1, [*state["losses"], total / count]
-        _save(checkpoint, model, optimiser, options, len(dataset), state)
-        if on_epoch is not None:
-            on_epoch(epoch + 1, total / count)
-    return load_checkpoint(checkpoint)
-
-
-def _save(
-    path: Path,
-    model: ADMLP,
-    optimiser: torch.optim.Optimizer,
-    options: TrainOptions,
-    samples: int,
-    state: dict[str, Any],
-) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    torch.save(
-        {
-            "kind": ADMLP.name,
-            "inputs": model.mean.shape[0],
-            "steps": model.steps,
-            "model": model.state_dict(),
-            "optimiser": optimiser.state_dict(),
-            "options": asdict(options),
-            "samples": samples,
-            **state,
-        },
-        partial,
-    )
-    os.replace(partial, path)
+    header = {"kind": ADMLP.name, "inputs": model.mean.shape[0], "steps": model.steps}
+    return fit(model, data, lambda m, rows: m(rows["x"]), checkpoint, options, header, on_epoch)
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError) as error:
-        raise DriveE2EError(f"{path}: not a readable checkpoint ({error})") from None
-    if not isinstance(saved, dict) or saved.get("kind") != ADMLP.name:
-        raise DriveE2EError(f"{path}: not an AD-MLP checkpoint (drivee2e train admlp writes one)")
-    return saved
+    return checkpoints.load(path, ADMLP.name, "drivee2e train admlp")
 
 
 def load(path: Path) -> ADMLP:

@@ -1,0 +1,195 @@
+"""A small camera policy: the three front cameras at low resolution, the high-level command,
+the speed and the route's target point, to the 2 Hz waypoints (a TCP-like trajectory branch
+without its control branch). Trainable on a CPU in minutes: `drivee2e train camera DATA`.
+
+Images go through the Dataset's own decoder (JPEG reduced in the DCT, then area-resized), in
+training and in closed loop alike, so the policy sees the same pixels in both.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents.training import TrainOptions, fit
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
+from drivee2e_data.loaders.collate import collate
+from drivee2e_data.loaders.dataset import DriveE2EDataset
+from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.sensors.rig import Rig
+
+FRONT_CAMERAS = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
+INPUT_SIZE = (128, 72)  # width, height fed to the network
+SPEED_SCALE_MPS = 10.0
+TARGET_SCALE_M = 20.0
+
+
+class CameraPolicy(nn.Module):
+    """Shared convolutional encoder per camera, concatenated with command (3), speed (1) and
+    target point (2), through an MLP to `steps` waypoints."""
+
+    name = "camera"
+
+    def __init__(self, cameras: int = 3, steps: int = 6) -> None:
+        super().__init__()
+        self.steps = steps
+
+        def block(inputs: int, outputs: int, stride: int) -> nn.Sequential:
+            return nn.Sequential(
+                nn.Conv2d(inputs, outputs, 3, stride, 1), nn.BatchNorm2d(outputs), nn.ReLU()
+            )
+
+        self.encoder = nn.Sequential(
+            block(3, 24, 2), block(24, 32, 2), block(32, 48, 2), block(48, 64, 2),
+            nn.AdaptiveAvgPool2d((1, 2)), nn.Flatten(),
+        )  # fmt: skip
+        self.head = nn.Sequential(
+            nn.Linear(cameras * 128 + 6, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
+            nn.Linear(256, steps * 2),
+        )  # fmt: skip
+        self.register_buffer("pixel_mean", torch.tensor([0.45, 0.45, 0.45]).view(1, 3, 1, 1))
+        self.register_buffer("pixel_std", torch.tensor([0.25, 0.25, 0.25]).view(1, 3, 1, 1))
+
+    def forward(self, images: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
+        """images: (B, K, 3, H, W) uint8; vector: (B, 6) command one-hot, speed, target."""
+        batch, cameras = images.shape[:2]
+        pixels = images.flatten(0, 1).float() / 255.0
+        features = self.encoder((pixels - self.pixel_mean) / self.pixel_std)
+        features = features.view(batch, cameras * features.shape[1])
+        return self.head(torch.cat([features, vector], 1)).view(batch, self.steps, 2)
+
+
+def vector_features(
+    command_one_hot: torch.Tensor, speed_mps: torch.Tensor, target_m: torch.Tensor
+) -> torch.Tensor:
+    """(B, 6): command one-hot (3), speed / 10 m/s, target point / 20 m."""
+    return torch.cat(
+        [
+            command_one_hot.float(),
+            speed_mps.float().view(-1, 1) / SPEED_SCALE_MPS,
+            target_m.float().view(-1, 2) / TARGET_SCALE_M,
+        ],
+        1,
+    )
+
+
+def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
+    """The split's samples as the camera policy reads them (front cameras at input size)."""
+    return DriveE2EDataset(
+        root, split, split_name, cameras=FRONT_CAMERAS, image_size=INPUT_SIZE, with_map=False
+    )
+
+
+def extract(
+    dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
+) -> dict[str, torch.Tensor]:
+    rows: dict[str, list[torch.Tensor]] = {"images": [], "vector": [], "y": [], "mask": []}
+    for start in range(0, len(dataset), 64):
+        batch = collate([dataset[i] for i in range(start, min(start + 64, len(dataset)))])
+        rows["images"].append(batch["img"])
+        speed = batch["ego_status"][:, 6]
+        rows["vector"].append(
+            vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
+        )
+        rows["y"].append(batch["gt_ego_fut_trajs"].float())
+        rows["mask"].append(batch["gt_ego_fut_masks"])
+        if progress is not None:
+            progress(len(speed))
+    return {key: torch.cat(value) for key, value in rows.items()}
+
+
+def train(
+    dataset: DriveE2EDataset,
+    checkpoint: Path,
+    options: TrainOptions | None = None,
+    on_epoch: Callable[[int, float], None] | None = None,
+    on_sample: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Train on every sample of `dataset` (from `dataset_for`); returns the checkpoint."""
+    options = options or TrainOptions(epochs=12, batch_size=32)
+    if len(dataset) == 0:
+        raise DriveE2EError(
+            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
+        )
+    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != INPUT_SIZE:
+        raise DriveE2EError("the camera policy trains on camera.dataset_for(...) samples")
+    first = dataset.samples[0][0]
+    full_size = dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"]
+    data = extract(dataset, on_sample)
+    torch.manual_seed(options.seed)
+    model = CameraPolicy(len(FRONT_CAMERAS), data["y"].shape[1])
+    header = {"kind": CameraPolicy.name, "steps": model.steps, "camera_size": list(full_size)}
+    return fit(
+        model,
+        data,
+        lambda m, rows: m(rows["images"], rows["vector"]),
+        checkpoint,
+        options,
+        header,
+        on_epoch,
+    )
+
+
+def load(path: Path) -> tuple[CameraPolicy, tuple[int, int]]:
+    """The trained policy and the camera image size its data was collected at."""
+    saved = checkpoints.load(path, CameraPolicy.name, "drivee2e train camera")
+    model = CameraPolicy(len(FRONT_CAMERAS), saved["steps"])
+    model.load_state_dict(saved["model"])
+    model.eval()
+    width, height = saved["camera_size"]
+    return model, (int(width), int(height))
+
+
+class CameraAgent:
+    """The camera policy in closed loop: the front cameras rendered at the size its training
+    data was collected at, decoded as the Dataset decodes them."""
+
+    name = "camera"
+    sensors = FRONT_CAMERAS
+
+    def __init__(self, checkpoint: Path | None = None) -> None:
+        if checkpoint is None:
+            raise DriveE2EError(
+                "agent camera needs --checkpoint (drivee2e train camera writes one)"
+            )
+        self.model, self.image_size = load(Path(checkpoint))
+
+    def setup(self, route: Route, rig: Rig | None) -> None:
+        del route, rig  # the target point in each observation carries the route
+
+    @torch.no_grad()
+    def act(self, observation: Observation) -> Waypoints:
+        images = np.stack(
+            [decode_cpu(observation.images[c], self.image_size, INPUT_SIZE) for c in FRONT_CAMERAS]
+        )
+        command = torch.zeros(1, 3)
+        command[0, int(observation.command) - 1] = 1.0
+        vector = vector_features(
+            command,
+            torch.tensor([observation.speed_mps]),
+            torch.as_tensor(np.asarray(observation.target_point_m), dtype=torch.float32),
+        )
+        plan = self.model(torch.from_numpy(images)[None], vector)[0]
+        return Waypoints(plan.double().numpy())
+
+
+class CameraPlanner:
+    """The policy as an open-loop planner of Dataset batches (from `dataset_for`)."""
+
+    name = "camera"
+
+    def __init__(self, checkpoint: Path) -> None:
+        self.model, _ = load(Path(checkpoint))
+
+    @torch.no_grad()
+    def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        speed = batch["ego_status"][:, 6]
+        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
+        return self.model(batch["img"], vector).double()

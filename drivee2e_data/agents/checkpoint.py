@@ -1,0 +1,48 @@
+"""Checkpoints of the trained baselines: one torch file holding the model, the optimiser, the
+options and the epochs done, written atomically after every epoch so training resumes."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from drivee2e_data.errors import DriveE2EError
+
+
+def save(path: Path, document: dict[str, Any]) -> None:
+    """Write `document` to `path` through a temporary name in the same folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    torch.save(document, partial)
+    os.replace(partial, path)
+
+
+def load(path: Path, kind: str, maker: str) -> dict[str, Any]:
+    """The checkpoint at `path`, which must be of `kind` (`maker` says what writes one)."""
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as error:
+        raise DriveE2EError(f"{path}: not a readable checkpoint ({error})") from None
+    if not isinstance(saved, dict) or saved.get("kind") != kind:
+        raise DriveE2EError(f"{path}: not a {kind} checkpoint ({maker} writes one)")
+    return saved
+
+
+def resume_state(path: Path, options: dict[str, Any], samples: int) -> dict[str, Any] | None:
+    """The saved checkpoint when `path` holds one made with the same options (the epoch count
+    aside) and data size; None when there is none; an error when it was made otherwise."""
+    if not path.is_file():
+        return None
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    same = {k: v for k, v in saved["options"].items() if k != "epochs"} == {
+        k: v for k, v in options.items() if k != "epochs"
+    }
+    if not same or saved["samples"] != samples:
+        raise DriveE2EError(
+            f"{path}: made with other options or data ({saved['options']}, {saved['samples']} "
+            "samples); delete it or choose another --out"
+        )
+    return saved
