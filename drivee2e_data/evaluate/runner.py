@@ -84,7 +84,11 @@ def prepare_run(out: Path, options: EvaluationOptions, scenario_ids: list[str]) 
             )
     else:
         store.write_bytes_atomic(run_file, json.dumps(identity, indent=1, sort_keys=True).encode())
-    done = {p.stem for p in (out / EPISODES_FOLDER).glob("*.json")}
+    done = set()
+    for path in (out / EPISODES_FOLDER).glob("*.json"):
+        # a clip that could not be run (status 'error': a broken bundle) is tried again
+        if json.loads(path.read_text()).get("status") != "error":
+            done.add(path.stem)
     return [s for s in scenario_ids if s not in done]
 
 
@@ -240,6 +244,7 @@ def evaluate(
     on_episode: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Evaluate the clips without a result yet; returns every clip's row (old and new)."""
+    read_variant(root, Variant(options.variant))  # a missing variant fails before any episode
     pending = prepare_run(out, options, scenario_ids)
     if workers <= 1 or len(pending) <= 1:
         try:

@@ -1,0 +1,211 @@
+"""`drivee2e evaluate` end to end: result files, resuming after SIGKILL, determinism, agents
+in a child process (same scores as in-process; crashes, hangs and garbage reported per
+episode), recordings, occlusion variants from collected logs, the camera policy with cameras."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from mcap.reader import make_reader
+
+from drivee2e_data import store
+from drivee2e_data.cli import main
+from drivee2e_data.evaluate.runner import EPISODES_FOLDER
+from tests.conftest import copy_clips
+
+SCORE_COLUMNS = ("status", "success", "route_completion", "penalty", "driving_score", "events")
+CLIENT = f"{sys.executable} -m drivee2e_data.evaluate.agent_client"
+
+
+@pytest.fixture(scope="module")
+def three_clips(synthetic_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    ids = store.scenario_ids(synthetic_root)[:3]
+    root = copy_clips(synthetic_root, tmp_path_factory.mktemp("evaluate") / "data", ids)
+    assert main(["split", str(root)]) == 0
+    return root
+
+
+def episodes(out: Path) -> dict[str, dict]:
+    return {
+        p.stem: json.loads(p.read_text()) for p in sorted((out / EPISODES_FOLDER).glob("*.json"))
+    }
+
+
+def scores(out: Path) -> dict[str, tuple]:
+    return {k: tuple(row[c] for c in SCORE_COLUMNS) for k, row in episodes(out).items()}
+
+
+def test_evaluate_writes_episodes_summary_and_table(three_clips: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    args = ["evaluate", str(three_clips), "--split", "all", "--out", str(out)]
+    assert main([*args, "--agent", "expert", "--record"]) == 0
+    table = pq.read_table(out / "episodes.parquet").to_pylist()
+    assert len(table) == 3 and all(row["success"] for row in table)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["success_rate"] == 100.0 and summary["driving_score"] == 100.0
+    assert "| 3 | 100.0 | 100.00 | 100.0 |" in (out / "table.md").read_text()
+    record = out / "records" / f"{table[0]['scenario_id']}.mcap"
+    with open(record, "rb") as stream:
+        topics = {channel.topic for channel in make_reader(stream).get_summary().channels.values()}
+    assert topics == {"/map", "/tf", "/closedloop/scene"}
+    # another agent into the same folder is refused, naming it
+    assert main([*args, "--agent", "constant-velocity"]) == 2
+
+
+def test_same_agent_same_seed_same_scores(three_clips: Path, tmp_path: Path) -> None:
+    for name in ("a", "b"):
+        args = ["evaluate", str(three_clips), "--split", "all", "--out", str(tmp_path / name)]
+        assert main([*args, "--agent", "constant-velocity", "--reactive"]) == 0
+    assert scores(tmp_path / "a") == scores(tmp_path / "b")
+    assert any(not row[1] for row in scores(tmp_path / "a").values())  # it fails somewhere
+
+
+def test_workers_give_the_same_scores(three_clips: Path, tmp_path: Path) -> None:
+    base = ["evaluate", str(three_clips), "--split", "all", "--agent", "constant-velocity"]
+    assert main([*base, "--out", str(tmp_path / "one")]) == 0
+    assert main([*base, "--out", str(tmp_path / "two"), "--workers", "2"]) == 0
+    assert scores(tmp_path / "one") == scores(tmp_path / "two")
+
+
+SLOW_AGENT = """
+import time
+from drivee2e_data.agents.expert import LogReplayExpert
+
+class SlowExpert(LogReplayExpert):
+    def act(self, observation):
+        time.sleep(0.01)
+        return super().act(observation)
+"""
+
+
+def test_sigkill_then_rerun_scores_every_episode_once(three_clips: Path, tmp_path: Path) -> None:
+    (tmp_path / "slow_agent.py").write_text(SLOW_AGENT)
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "drivee2e_data.cli", "evaluate", str(three_clips),
+               "--split", "all", "--agent", "slow_agent:SlowExpert", "--out", str(out)]  # fmt: skip
+    process = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while not list((out / EPISODES_FOLDER).glob("*.json")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    finished = {
+        p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (out / EPISODES_FOLDER).glob("*.json")
+    }
+    assert 1 <= len(finished) < 3
+    assert not list((out / EPISODES_FOLDER).glob("*.partial"))
+    rerun = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True)
+    assert rerun.returncode == 0, rerun.stderr
+    for path, (content, mtime) in finished.items():
+        assert path.read_bytes() == content and path.stat().st_mtime_ns == mtime
+    rows = pq.read_table(out / "episodes.parquet").to_pylist()
+    assert sorted(r["scenario_id"] for r in rows) == sorted(store.scenario_ids(three_clips))
+    assert all(r["success"] for r in rows)
+
+
+def test_an_agent_in_a_child_process_scores_what_it_scores_in_process(
+    three_clips: Path, tmp_path: Path
+) -> None:
+    base = ["evaluate", str(three_clips), "--split", "all"]
+    assert main([*base, "--agent", "constant-velocity", "--out", str(tmp_path / "in")]) == 0
+    remote = f"{CLIENT} drivee2e_data.agents.constant_velocity:ConstantVelocityAgent"
+    assert main([*base, "--agent-cmd", remote, "--out", str(tmp_path / "child")]) == 0
+    assert scores(tmp_path / "in") == scores(tmp_path / "child")
+    remote = f"{CLIENT} drivee2e_data.agents.expert:LogReplayExpert"
+    assert main([*base, "--agent-cmd", remote, "--out", str(tmp_path / "expert")]) == 0
+    assert all(row[1] for row in scores(tmp_path / "expert").values())
+
+
+BAD_AGENTS = {
+    "crash": "raise RuntimeError('the model fell over')",
+    "hang": "time.sleep(60)",
+    "garbage": "os.write(real_stdout, b'this is not a message' * 4)",
+}
+BAD_AGENT = """
+import os, sys, time
+from drivee2e_data.evaluate import agent_client
+
+real_stdout = None
+
+class Bad:
+    name, sensors, image_size = "bad", (), None
+
+    def setup(self, route, rig):
+        self.steps = 0
+
+    def act(self, observation):
+        self.steps += 1
+        if self.steps == 3:
+            {action}
+        return agent_client.Waypoints([[1.0, 0.0]] * 6)
+
+if __name__ == "__main__":
+    real_stdout = os.dup(1)
+    agent_client.serve(Bad())
+"""
+
+
+@pytest.mark.parametrize("kind", sorted(BAD_AGENTS))
+def test_a_failing_child_ends_its_episode_not_the_run(
+    three_clips: Path, tmp_path: Path, kind: str
+) -> None:
+    script = tmp_path / f"{kind}.py"
+    script.write_text(textwrap.dedent(BAD_AGENT).replace("{action}", BAD_AGENTS[kind]))
+    out = tmp_path / "run"
+    args = ["evaluate", str(three_clips), "--split", "all", "--out", str(out),
+            "--agent-cmd", f"{sys.executable} {script}", "--step-timeout", "2"]  # fmt: skip
+    assert main(args) == 0
+    rows = episodes(out)
+    assert len(rows) == 3
+    for row in rows.values():
+        assert row["status"] == "agent_failed" and row["agent_failed"] == 1
+        assert row["steps"] == 2 and row["driving_score"] < 10
+    failure = next(iter(rows.values()))["failure"]
+    expected = {"crash": "the model fell over", "hang": "no answer to step 2 within 2 s",
+                "garbage": "garbled message"}[kind]  # fmt: skip
+    assert expected in failure
+
+
+def test_occlusion_variant_from_collected_logs(collected_root: Path, tmp_path: Path) -> None:
+    root = tmp_path / "data"
+    copy_clips(collected_root, root, store.scenario_ids(collected_root))
+    (root / "logs").symlink_to(collected_root / "logs")
+    assert main(["split", str(root)]) == 0
+    assert main(["evaluate", str(root), "--split", "all", "--variant", "occ-all"]) == 2  # none yet
+    assert main(["curate", str(root), "--occlusion", "all"]) == 0
+    assert main(["curate", str(root), "--occlusion", "vehicle"]) == 0
+    removed = {
+        v: json.loads((root / "variants" / f"{v}.json").read_text())["removed"]
+        for v in ("occ-all", "occ-vehicle")
+    }
+    for scenario_id, ids in removed["occ-vehicle"].items():
+        assert set(ids) <= set(removed["occ-all"][scenario_id])
+    assert sum(len(v) for v in removed["occ-all"].values()) > 0
+    assert main(["evaluate", str(root), "--split", "all", "--variant", "occ-all"]) == 0
+    rows = pq.read_table(root / "results" / "expert-all-occ-all" / "episodes.parquet").to_pylist()
+    assert [r["removed_agents"] for r in rows] == [
+        len(removed["occ-all"][r["scenario_id"]]) for r in rows
+    ]
+
+
+def test_camera_policy_trains_and_drives_with_its_cameras(
+    loader_root: Path, tmp_path: Path
+) -> None:
+    checkpoint = tmp_path / "camera.pt"
+    args = ["train", "camera", str(loader_root), "--out", str(checkpoint), "--epochs", "2"]
+    assert main(args) == 0
+    out = tmp_path / "run"
+    assert main(["evaluate", str(loader_root), "--split", "val", "--agent", "camera",
+                 "--checkpoint", str(checkpoint), "--out", str(out)]) == 0  # fmt: skip
+    (row,) = episodes(out).values()
+    assert row["failure"] == "" and row["steps"] > 10
+    assert os.path.getsize(out / "table.md") > 0
