@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # The main job on the embedded default: install, synthesise a small set of intersections and
 # staged clips, curate them (track quality, behaviour labels), collect expert data with the full
-# sensor suite into one MCAP log per clip, split the clips 2:1:1, and score two open-loop
+# sensor suite into one MCAP log per clip, split the clips 2:1:1, score two open-loop
 # baselines (constant velocity; AD-MLP trained on the train split) on the val split through the
-# torch data module. Output goes to ./data.
+# torch data module, then drive the val clips in closed loop with the log-replay expert,
+# constant velocity, AD-MLP and the camera policy (Success Rate, Driving Score). Output goes to
+# ./data.
 #   DATA=...      data root (default data)
 #   CLIPS=N       clips to synthesise (default 4)
 #   FRAMES=N      frames collected per clip (default 50, 5 s); FRAMES=all for whole clips
@@ -25,3 +27,4 @@ if [ "$FRAMES" != "all" ]; then LIMIT=(--max-frames "$FRAMES"); fi
 .venv/bin/drivee2e logs "$DATA" --validate
 .venv/bin/drivee2e split "$DATA" --seed "${SEED:-0}"
 bash scripts/openloop_baselines.sh "$DATA" val
+bash scripts/closedloop_baselines.sh "$DATA" val

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Closed-loop baselines on a curated, collected, split data root: the log-replay expert,
+# constant velocity, AD-MLP and the camera policy (both trained on the train split), each
+# driven on SPLIT in closed loop; the camera policy is also scored open loop. Then the paper's
+# Table 3 shape and the per-behaviour SR table (scripts/results_table.py --closedloop).
+#   bash scripts/closedloop_baselines.sh DATA [SPLIT (default val)] [CAMERA_EPOCHS (default 12)]
+#   WORKERS=N  evaluation processes (default 2);  EXTRA="--reactive" or "--variant occ-all" ...
+# AD-MLP's checkpoint is the open-loop one (scripts/openloop_baselines.sh trains it when absent).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA="$1"
+SPLIT="${2:-val}"
+EPOCHS="${3:-12}"
+WORKERS="${WORKERS:-2}"
+EXTRA=(${EXTRA:-})
+OUT="$DATA/results/openloop"
+DRIVEE2E="${DRIVEE2E:-.venv/bin/drivee2e}"
+[ -f "$OUT/admlp_${SPLIT}_stp3.json" ] || bash scripts/openloop_baselines.sh "$DATA" "$SPLIT"
+"$DRIVEE2E" train camera "$DATA" --split train --epochs "$EPOCHS" --out "$OUT/camera.pt"
+"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model camera --checkpoint "$OUT/camera.pt" \
+    --out "$OUT/camera_$SPLIT.parquet"
+for convention in stp3 uniad; do
+    "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/camera_$SPLIT.parquet" \
+        --convention "$convention" --json "$OUT/camera_${SPLIT}_$convention.json" > /dev/null
+done
+for agent in expert constant-velocity admlp camera; do
+    CHECKPOINT=()
+    case "$agent" in admlp|camera) CHECKPOINT=(--checkpoint "$OUT/$agent.pt");; esac
+    echo "== $agent on $SPLIT (closed loop) ${EXTRA[*]}"
+    "$DRIVEE2E" evaluate "$DATA" --split "$SPLIT" --agent "$agent" "${CHECKPOINT[@]}" \
+        --workers "$WORKERS" "${EXTRA[@]}" > /dev/null
+done
+python3 scripts/results_table.py "$DATA" --split "$SPLIT" --closedloop ${EXTRA_TABLE:-}
