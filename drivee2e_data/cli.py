@@ -149,7 +149,7 @@ def build_parser() -> argparse.ArgumentParser:
     _split_options(train, "train")
     train.add_argument("--out", type=Path, required=True, help="checkpoint to write (resumes)")
     train.add_argument(
-        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 12"
+        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 40"
     )
     train.add_argument(
         "--batch-size", type=_positive, default=None, help="default: admlp 64, camera 32"
@@ -253,7 +253,7 @@ def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
 
 
 def _train(args: argparse.Namespace) -> int:
-    epochs = args.epochs or (60 if args.model == "admlp" else 12)
+    epochs = args.epochs or (60 if args.model == "admlp" else 40)
     batch_size = args.batch_size or (64 if args.model == "admlp" else 32)
     options = TrainOptions(epochs, batch_size, args.learning_rate, args.seed)
     if args.model == "camera":

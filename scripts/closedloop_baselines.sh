@@ -3,14 +3,14 @@
 # constant velocity, AD-MLP and the camera policy (both trained on the train split), each
 # driven on SPLIT in closed loop; the camera policy is also scored open loop. Then the paper's
 # Table 3 shape and the per-behaviour SR table (scripts/results_table.py --closedloop).
-#   bash scripts/closedloop_baselines.sh DATA [SPLIT (default val)] [CAMERA_EPOCHS (default 12)]
+#   bash scripts/closedloop_baselines.sh DATA [SPLIT (default val)] [CAMERA_EPOCHS (default 40)]
 #   WORKERS=N  evaluation processes (default 2);  EXTRA="--reactive" or "--variant occ-all" ...
 # AD-MLP's checkpoint is the open-loop one (scripts/openloop_baselines.sh trains it when absent).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA="$1"
 SPLIT="${2:-val}"
-EPOCHS="${3:-12}"
+EPOCHS="${3:-40}"
 WORKERS="${WORKERS:-2}"
 EXTRA=(${EXTRA:-})
 OUT="$DATA/results/openloop"

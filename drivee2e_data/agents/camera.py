@@ -29,11 +29,14 @@ FRONT_CAMERAS = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
 INPUT_SIZE = (128, 72)  # width, height fed to the network
 SPEED_SCALE_MPS = 10.0
 TARGET_SCALE_M = 20.0
+PIXEL_MEAN, PIXEL_STD = 0.45, 0.25
 
 
 class CameraPolicy(nn.Module):
-    """Shared convolutional encoder per camera, concatenated with command (3), speed (1) and
-    target point (2), through an MLP to `steps` waypoints."""
+    """A small convolutional encoder shared by the cameras, globally pooled and squeezed to 16
+    features with dropout, beside command (3), speed (1) and target point (2), through an MLP
+    to `steps` waypoints. Small on purpose: with a few dozen training clips a larger image
+    branch memorises each clip's look and drives worse (docs/results.md)."""
 
     name = "camera"
 
@@ -41,29 +44,38 @@ class CameraPolicy(nn.Module):
         super().__init__()
         self.steps = steps
 
-        def block(inputs: int, outputs: int, stride: int) -> nn.Sequential:
+        def block(inputs: int, outputs: int) -> nn.Sequential:
             return nn.Sequential(
-                nn.Conv2d(inputs, outputs, 3, stride, 1), nn.BatchNorm2d(outputs), nn.ReLU()
+                nn.Conv2d(inputs, outputs, 3, 2, 1), nn.BatchNorm2d(outputs), nn.ReLU()
             )
 
         self.encoder = nn.Sequential(
-            block(3, 24, 2), block(24, 32, 2), block(32, 48, 2), block(48, 64, 2),
-            nn.AdaptiveAvgPool2d((1, 2)), nn.Flatten(),
+            block(3, 16), block(16, 24), block(24, 32), block(32, 32),
+            nn.AdaptiveAvgPool2d(1), nn.Flatten(),
         )  # fmt: skip
+        self.squeeze = nn.Sequential(
+            nn.Dropout(0.5), nn.Linear(cameras * 32, 16), nn.ReLU(), nn.Dropout(0.3)
+        )
         self.head = nn.Sequential(
-            nn.Linear(cameras * 128 + 6, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
+            nn.Linear(16 + 6, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
             nn.Linear(256, steps * 2),
         )  # fmt: skip
-        self.register_buffer("pixel_mean", torch.tensor([0.45, 0.45, 0.45]).view(1, 3, 1, 1))
-        self.register_buffer("pixel_std", torch.tensor([0.25, 0.25, 0.25]).view(1, 3, 1, 1))
+        # training draws a brightness gain per image from this counter: saved with the weights,
+        # so a resumed training draws what an uninterrupted one would
+        self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
 
     def forward(self, images: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """images: (B, K, 3, H, W) uint8; vector: (B, 6) command one-hot, speed, target."""
         batch, cameras = images.shape[:2]
         pixels = images.flatten(0, 1).float() / 255.0
-        features = self.encoder((pixels - self.pixel_mean) / self.pixel_std)
-        features = features.view(batch, cameras * features.shape[1])
-        return self.head(torch.cat([features, vector], 1)).view(batch, self.steps, 2)
+        if self.training:
+            generator = torch.Generator().manual_seed(int(self.augment_step))
+            self.augment_step += 1
+            gain = torch.empty(batch, 1, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
+            pixels = (pixels.view(batch, cameras, *pixels.shape[1:]) * gain).clamp(0.0, 1.0)
+            pixels = pixels.flatten(0, 1)
+        features = self.encoder((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)
+        return self.head(torch.cat([self.squeeze(features), vector], 1)).view(batch, self.steps, 2)
 
 
 def vector_features(
@@ -113,7 +125,7 @@ def train(
     on_sample: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (from `dataset_for`); returns the checkpoint."""
-    options = options or TrainOptions(epochs=12, batch_size=32)
+    options = options or TrainOptions(epochs=40, batch_size=32)
     if len(dataset) == 0:
         raise DriveE2EError(
             f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"

@@ -10,6 +10,7 @@ without pybullet at all.
 
 from __future__ import annotations
 
+import atexit
 import json
 import multiprocessing
 import os
@@ -262,6 +263,7 @@ def evaluate(
 def _init_worker() -> None:
     os.environ.setdefault("LP_NUM_THREADS", "1")  # one llvmpipe thread per worker process
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    atexit.register(close_process_state)  # the world's EGL context closes quietly
 
 
 def _run_pool(
