@@ -45,7 +45,7 @@ def main() -> None:
     agents = [("expert", None), ("constant-velocity", None)]
     agents += [("admlp", args.admlp)] if args.admlp else []
     agents += [("camera", args.camera)] if args.camera else []
-    figure, axes = plt.subplots(1, len(args.clips), figsize=(5.5 * len(args.clips), 5.8))
+    figure, axes = plt.subplots(len(args.clips), 1, figsize=(11, 3.4 * len(args.clips)))
     axes = np.atleast_1d(axes)
     world = None
     for axis, clip in zip(axes, args.clips, strict=True):
@@ -85,14 +85,14 @@ def main() -> None:
             axis.plot(*driven[-1], "s", color=COLOURS[name], markersize=6, zorder=5)
         axis.plot(*route.T, "--", color="black", linewidth=1.2, label="logged path", zorder=3)
         axis.plot(*route[0], "o", color="black", markersize=6, zorder=5)
-        margin = 25.0
+        margin = 12.0
         low, high = route.min(0) - margin, route.max(0) + margin
         axis.set_xlim(low[0], high[0])
         axis.set_ylim(low[1], high[1])
         axis.set_aspect("equal")
         behaviour = scenario.behavior.sub_scenario.value if scenario.behavior else "-"
         axis.set_title(f"{clip} ({behaviour})", fontsize=10)
-        axis.legend(loc="lower left", fontsize=7, framealpha=0.9)
+        axis.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8, framealpha=0.9)
         axis.set_xticks([])
         axis.set_yticks([])
     if world is not None:
