@@ -20,7 +20,7 @@ from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors.suite import STAGES, SensorSuite, SuiteOptions
-from drivee2e_data.sim.world import World
+from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
 
@@ -66,16 +66,7 @@ def _close_world() -> None:
 def _world_for(root: Path, scenario_id: str, renderer: str) -> World:
     global _world
     scenario = store.read_scenario(root, scenario_id)
-    if _world is not None and (
-        _world.intersection_map.map_id != scenario.map_id
-        or renderer not in ("auto", _world.renderer)
-    ):
-        _world.close()
-        _world = None
-    if _world is None:
-        _world = World(store.read_map(root, scenario.map_id), scenario, renderer=renderer)
-    else:
-        _world.replay(scenario)
+    _world = world_for(_world, scenario, lambda map_id: store.read_map(root, map_id), renderer)
     return _world
 
 

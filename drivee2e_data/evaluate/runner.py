@@ -116,15 +116,9 @@ def _agent_for(options: EvaluationOptions) -> Any:
 
 def _world_for(root: Path, scenario: Any, renderer: str) -> Any:
     global _world
-    from drivee2e_data.sim.world import World
+    from drivee2e_data.sim.world import world_for
 
-    if _world is not None and _world.intersection_map.map_id != scenario.map_id:
-        _world.close()
-        _world = None
-    if _world is None:
-        _world = World(store.read_map(root, scenario.map_id), scenario, renderer=renderer)
-    else:
-        _world.replay(scenario)
+    _world = world_for(_world, scenario, lambda map_id: store.read_map(root, map_id), renderer)
     return _world
 
 

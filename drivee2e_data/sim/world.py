@@ -15,7 +15,7 @@ import logging
 import os
 import pkgutil
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -256,3 +256,23 @@ class World:
         depth_m = (far_m * near / (far_m - (far_m - near) * buffer)).astype(np.float32)
         mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
         return Image(rgb, depth_m, mask)
+
+
+def world_for(
+    previous: World | None,
+    scenario: Scenario,
+    read_map: Callable[[str], IntersectionMap],
+    renderer: str = "auto",
+) -> World:
+    """A world showing `scenario`: `previous` itself when it shows the same map with a renderer
+    that suits (a twin takes a second or two to build), else a new one (`previous` closed)."""
+    if previous is not None and (
+        previous.intersection_map.map_id != scenario.map_id
+        or renderer not in ("auto", previous.renderer)
+    ):
+        previous.close()
+        previous = None
+    if previous is None:
+        return World(read_map(scenario.map_id), scenario, renderer=renderer)
+    previous.replay(scenario)
+    return previous
