@@ -539,7 +539,7 @@ def _occlusion(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     if args.agent_cmd is None:
-        registry.resolve(args.agent)  # a bad name fails here, not in every episode
+        registry.build(args.agent, args.checkpoint)  # a bad name or checkpoint fails here, once
     options = runner.EvaluationOptions(
         agent=args.agent,
         checkpoint=str(args.checkpoint) if args.checkpoint else None,

@@ -57,8 +57,12 @@ def test_evaluate_writes_episodes_summary_and_table(three_clips: Path, tmp_path:
     with open(record, "rb") as stream:
         topics = {channel.topic for channel in make_reader(stream).get_summary().channels.values()}
     assert topics == {"/map", "/tf", "/closedloop/scene"}
-    # another agent into the same folder is refused, naming it
+    # another agent into the same folder is refused, naming it; so are a missing or bad
+    # checkpoint and an unknown agent, before any episode
     assert main([*args, "--agent", "constant-velocity"]) == 2
+    assert main([*args, "--agent", "admlp"]) == 2
+    assert main([*args, "--agent", "camera", "--checkpoint", str(record)]) == 2
+    assert main([*args, "--agent", "no_such_module:Agent"]) == 2
 
 
 def test_same_agent_same_seed_same_scores(three_clips: Path, tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ options and the epochs done, written atomically after every epoch so training re
 from __future__ import annotations
 
 import os
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +23,7 @@ def save(path: Path, document: dict[str, Any]) -> None:
 
 def load(path: Path, kind: str, maker: str) -> dict[str, Any]:
     """The checkpoint at `path`, which must be of `kind` (`maker` says what writes one)."""
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError) as error:
-        raise DriveE2EError(f"{path}: not a readable checkpoint ({error})") from None
+    saved = _read(path)
     if not isinstance(saved, dict) or saved.get("kind") != kind:
         raise DriveE2EError(f"{path}: not a {kind} checkpoint ({maker} writes one)")
     return saved
@@ -36,7 +34,9 @@ def resume_state(path: Path, options: dict[str, Any], samples: int) -> dict[str,
     aside) and data size; None when there is none; an error when it was made otherwise."""
     if not path.is_file():
         return None
-    saved = torch.load(path, map_location="cpu", weights_only=True)
+    saved = _read(path)
+    if not isinstance(saved, dict) or "options" not in saved or "samples" not in saved:
+        raise DriveE2EError(f"{path}: not a checkpoint of this trainer; choose another --out")
     same = {k: v for k, v in saved["options"].items() if k != "epochs"} == {
         k: v for k, v in options.items() if k != "epochs"
     }
@@ -46,3 +46,13 @@ def resume_state(path: Path, options: dict[str, Any], samples: int) -> dict[str,
             "samples); delete it or choose another --out"
         )
     return saved
+
+
+def _read(path: Path) -> Any:
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, ValueError, pickle.UnpicklingError) as error:
+        first_line = (
+            str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        )
+        raise DriveE2EError(f"{path}: not a readable checkpoint ({first_line})") from None
