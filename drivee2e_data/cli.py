@@ -555,10 +555,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     manifest = splits.split_path(args.data, args.split_name)
     if not manifest.is_file():
         raise DriveE2EError(f"{manifest}: no split manifest; run drivee2e split {args.data}")
-    if args.split == "all":
-        clips = [row.scenario_id for row in splits.read_manifest(manifest)]
-    else:
-        clips = splits.scenario_ids(manifest, args.split)
+    clips = splits.scenario_ids(manifest, args.split)
     if args.only:
         clips = [c for c in clips if c in set(args.only)]
     if not clips:

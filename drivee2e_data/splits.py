@@ -246,10 +246,10 @@ def split_root(root: Path, name: str = "default", seed: int = 0) -> tuple[Path, 
 
 
 def scenario_ids(path: Path, split: str) -> list[str]:
-    """The clips of one split of a manifest, in manifest order."""
-    if split not in SPLITS:
-        raise SplitFormatError(f"split {split!r}: expected one of {', '.join(SPLITS)}")
-    return [row.scenario_id for row in read_manifest(path) if row.split == split]
+    """The clips of one split of a manifest (or of all of them, `all`), in manifest order."""
+    if split not in (*SPLITS, "all"):
+        raise SplitFormatError(f"split {split!r}: expected one of {', '.join(SPLITS)} or all")
+    return [row.scenario_id for row in read_manifest(path) if split in ("all", row.split)]
 
 
 def counts_table(rows: list[ClipRow]) -> list[tuple[str, ...]]:

@@ -268,6 +268,8 @@ def _run_pool(
     workers: int,
     on_episode: Callable[[dict[str, Any]], None] | None,
 ) -> None:
+    # longest clips first: the last worker to finish then waits least for the others
+    pending = sorted(pending, key=lambda s: -_frames(root, s))
     context = multiprocessing.get_context("spawn")
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
     try:
@@ -291,6 +293,13 @@ def _run_pool(
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown()
+
+
+def _frames(root: Path, scenario_id: str) -> int:
+    try:
+        return store.read_timeline(root, scenario_id)[1]
+    except DriveE2EError:  # a broken bundle: its episode will say so
+        return 0
 
 
 def read_rows(out: Path, scenario_ids: list[str]) -> list[dict[str, Any]]:
