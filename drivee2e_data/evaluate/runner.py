@@ -255,7 +255,13 @@ def evaluate(
 
 
 def _init_worker() -> None:
-    os.environ.setdefault("LP_NUM_THREADS", "1")  # one llvmpipe thread per worker process
+    # one thread per worker for llvmpipe, torch (OpenMP) and OpenCV: with a worker per core,
+    # their per-core threads only compete (a lone evaluation process keeps them all)
+    for name in ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    import cv2
+
+    cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit.register(close_process_state)  # the world's EGL context closes quietly
 
