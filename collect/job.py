@@ -9,6 +9,7 @@ map (building a twin takes a second or two).
 from __future__ import annotations
 
 import atexit
+import json
 import resource
 import time
 import traceback
@@ -19,6 +20,7 @@ from pathlib import Path
 from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.writer import LogWriter
+from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
 from drivee2e_data.sensors.suite import STAGES, SensorSuite, SuiteOptions
 from drivee2e_data.sim.world import World, world_for
 
@@ -32,9 +34,17 @@ class CollectOptions:
     image_size: tuple[int, int] | None = None  # None: 1600x900
     jpeg_quality: int = 85
     max_frames: int | None = None  # None: the whole clip
+    camera_labels: tuple[str, ...] = ()  # dense labels per camera: depth, semantic, instance
+    label_scale: int = DEFAULT_LABEL_SCALE  # labels at 1/scale of the camera resolution
 
     def suite(self) -> SuiteOptions:
-        return SuiteOptions(self.cameras, self.image_size, self.jpeg_quality)
+        return SuiteOptions(
+            self.cameras,
+            self.image_size,
+            self.jpeg_quality,
+            camera_labels=self.camera_labels,
+            label_scale=self.label_scale,
+        )
 
 
 @dataclass
@@ -70,6 +80,24 @@ def _world_for(root: Path, scenario_id: str, renderer: str) -> World:
     return _world
 
 
+def label_metadata(suite: SensorSuite, options: CollectOptions) -> dict[str, str]:
+    """The log's `drivee2e.camera_labels` record: kinds, scale, size, units, the class table
+    and the instance values' track ids."""
+    camera = suite.rig.cameras[0]
+    offset, scale = options.label_scale // 2, options.label_scale
+    return {
+        "kinds": ",".join(options.camera_labels),
+        "scale": str(scale),
+        "width": str(len(range(offset, camera.width, scale))),
+        "height": str(len(range(offset, camera.height, scale))),
+        "depth_unit": "mm (0: no hit or beyond 65.535 m)",
+        "semantic_classes": json.dumps(list(SEMANTIC_CLASSES)),
+        "instance_track_ids": json.dumps(
+            [t for t, _ in sorted(suite.instance_index.items(), key=lambda item: item[1])]
+        ),
+    }
+
+
 def collect_clip(
     root: Path,
     scenario_id: str,
@@ -96,8 +124,11 @@ def collect_clip(
             "jpeg_quality": str(options.jpeg_quality),
             "cameras": ",".join(c.name for c in suite.rig.cameras),
         }
+        labels = None
+        if options.camera_labels:
+            labels = label_metadata(suite, options)
         with LogWriter(
-            path, scenario, world.intersection_map, suite.rig, suite.motion, collection
+            path, scenario, world.intersection_map, suite.rig, suite.motion, collection, labels
         ) as writer:
             for frame in frames:
                 captured = suite.capture(frame)

@@ -29,6 +29,7 @@ from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.metrics.openloop import CONVENTIONS
 from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
+from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, LABEL_KINDS
 from drivee2e_data.sim.world import RENDERERS
 
 PLANNERS = ("constant-velocity", "admlp", "camera")
@@ -49,6 +50,16 @@ def _positive(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
     return value
+
+
+def _label_kinds(text: str) -> tuple[str, ...]:
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    unknown = [k for k in kinds if k not in LABEL_KINDS]
+    if unknown or not kinds:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected some of {','.join(LABEL_KINDS)}, comma-separated"
+        )
+    return kinds
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -133,6 +144,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--max-frames", type=_positive, default=None, help="only the first N frames of each clip"
     )
     collect.add_argument("--only", nargs="+", default=None, metavar="ID", help="these clips only")
+    collect.add_argument(
+        "--camera-labels", type=_label_kinds, default=(), metavar="KINDS",
+        help="also dense labels per camera, comma-separated: depth,semantic,instance",
+    )  # fmt: skip
+    collect.add_argument(
+        "--label-scale", type=_positive, default=DEFAULT_LABEL_SCALE,
+        help=f"labels at 1/N of the camera resolution (default {DEFAULT_LABEL_SCALE})",
+    )  # fmt: skip
 
     split = commands.add_parser(
         "split", help="2:1:1 train/val/test over whole clips, stratified by behaviour"
@@ -396,6 +415,8 @@ def _collect(args: argparse.Namespace) -> int:
         image_size=args.image_size,
         jpeg_quality=args.jpeg_quality,
         max_frames=args.max_frames,
+        camera_labels=args.camera_labels,
+        label_scale=args.label_scale,
     )
     bars: list[tqdm] = []
 

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pyarrow.parquet as pq
 import torch
@@ -39,6 +40,7 @@ from drivee2e_data.loaders.map_labels import (
 )
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.camera_labels import LABEL_KINDS, decode_png
 
 LOGS_FOLDER = "logs"
 INDEX_NAME = "index.parquet"
@@ -81,6 +83,11 @@ class DriveE2EDataset(Dataset):
             along y); needs the data root's `maps/<map_id>.json`.
         bev_seg: (size in pixels, metres per pixel) to add `gt_bev_seg` (3, size, size) uint8
             masks around the LiDAR: drivable area, lane lines, pedestrian crossings.
+        camera_labels: some of ("depth", "semantic", "instance") from logs collected with
+            `--camera-labels`: `cam_depth` (K, H, W) float32 metres (0: no hit),
+            `cam_semantic` (K, H, W) uint8 (classes `SEMANTIC_CLASSES`), `cam_instance`
+            (K, H, W) int64 (0: no agent, k: `cam_instance_ids[k - 1]`), resized nearest to
+            the images' size.
     """
 
     def __init__(
@@ -102,6 +109,7 @@ class DriveE2EDataset(Dataset):
         map_patch_m: tuple[float, float] = DEFAULT_PATCH_M,
         map_points: int = DEFAULT_POINTS,
         bev_seg: tuple[int, float] | None = None,
+        camera_labels: Sequence[str] = (),
     ) -> None:
         self.root = Path(root)
         if decode not in DECODE_MODES:
@@ -116,6 +124,14 @@ class DriveE2EDataset(Dataset):
         self.horizons = labels.Horizons.of(history_s, future_s)
         self.with_map, self.map_patch_m, self.map_points = with_map, map_patch_m, map_points
         self.bev_seg = bev_seg
+        self.camera_labels = tuple(camera_labels)
+        unknown = [k for k in self.camera_labels if k not in LABEL_KINDS]
+        if unknown:
+            raise ValueError(
+                f"camera_labels: {unknown[0]!r} is not one of {', '.join(LABEL_KINDS)}"
+            )
+        if self.camera_labels and not self.cameras:
+            raise ValueError("camera_labels need cameras")
         if bev_seg is not None and not with_map:
             raise ValueError("bev_seg rasterises the map: it needs with_map=True")
         if split != "all" and split not in splits.SPLITS:
@@ -170,6 +186,12 @@ class DriveE2EDataset(Dataset):
             raise DriveE2EError(
                 f"{log.path}: camera {missing[0]} was not collected (the log has "
                 f"{', '.join(log.cameras)})"
+            )
+        absent = [k for k in self.camera_labels if k not in log.camera_label_kinds]
+        if absent:
+            raise DriveE2EError(
+                f"{log.path}: camera label {absent[0]!r} was not collected (collect with "
+                "--camera-labels depth,semantic,instance)"
             )
         lidar_to_ego = log.lidar_to_ego
         cameras = {}
@@ -348,6 +370,8 @@ class DriveE2EDataset(Dataset):
                         ]
                     )
                 )
+        if self.camera_labels:
+            result.update(self._camera_labels(log, frame, cameras))
         if self.with_lidar:
             (cloud,) = self._read(log, frame, [topics.LIDAR], PointCloud)
             rows = cloud_rows(cloud)
@@ -357,6 +381,32 @@ class DriveE2EDataset(Dataset):
             result["points"] = torch.from_numpy(points.astype(np.float32))
         if self.with_radar:
             result["radar_points"] = torch.from_numpy(self._radar(log, frame, info))
+        return result
+
+    def _camera_labels(self, log: LogReader, frame: int, cameras: dict[str, Any]) -> dict[str, Any]:
+        """The frame's dense labels per camera, resized nearest to the images' size."""
+        topic_names = [
+            topics.camera_label_topic(c, k) for c in self.cameras for k in self.camera_labels
+        ]
+        images = iter(self._read(log, frame, topic_names, CompressedImage))
+        stacks: dict[str, list[NDArray]] = {k: [] for k in self.camera_labels}
+        for camera in self.cameras:
+            size = self.image_size or cameras[camera]["full_size"]
+            for kind in self.camera_labels:
+                label = decode_png(next(images).data)
+                if (label.shape[1], label.shape[0]) != tuple(size):
+                    label = cv2.resize(label, tuple(size), interpolation=cv2.INTER_NEAREST)
+                stacks[kind].append(label)
+        result: dict[str, Any] = {}
+        if "depth" in stacks:
+            result["cam_depth"] = torch.from_numpy(
+                np.stack(stacks["depth"]).astype(np.float32) / 1000
+            )
+        if "semantic" in stacks:
+            result["cam_semantic"] = torch.from_numpy(np.stack(stacks["semantic"]))
+        if "instance" in stacks:
+            result["cam_instance"] = torch.from_numpy(np.stack(stacks["instance"]).astype(np.int64))
+            result["cam_instance_ids"] = list(log.camera_label_info["instance_track_ids"])
         return result
 
     def jpegs(self, log: LogReader, scenario_id: str, frame: int) -> list[bytes]:

@@ -2,13 +2,17 @@
 a naive reference measured in the same run.
 
     python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
+        [--camera-labels depth,semantic,instance [--label-scale 4]]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
 written under two scenario ids so that `--workers 2` has two jobs; each is collected for
 `--frames` frames with six 1600x900 cameras, the 64-channel LiDAR, five radars, the top view and
 annotations. The reference is the same suite in one process with pybullet's TinyRenderer (the
 naive pipeline), over `--reference-frames` frames. Prints frames/s of both and their ratio, the
-per-stage time per frame, peak memory per worker and megabytes of log per frame.
+per-stage time per frame, peak memory per worker and megabytes of log per frame. With
+`--camera-labels`, the suite runs with the dense labels and again without them (the reference
+for their cost), and the slowdown and the log size of both are printed; `--reference-frames 0`
+skips the TinyRenderer reference.
 """
 
 from __future__ import annotations
@@ -55,7 +59,13 @@ def main() -> None:
     parser.add_argument("--reference-frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    parser.add_argument("--camera-labels", default="", help="e.g. depth,semantic,instance")
+    parser.add_argument("--label-scale", type=int, default=4)
     args = parser.parse_args()
+    kinds = tuple(k for k in args.camera_labels.split(",") if k)
+    labelled = CollectOptions(
+        max_frames=args.frames, camera_labels=kinds, label_scale=args.label_scale
+    )
     with tempfile.TemporaryDirectory() as folder:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
         root = Path(folder) / "data"
@@ -70,29 +80,49 @@ def main() -> None:
             f"{scenario.conditions.time_of_day.value}; {args.frames} frames x 2 jobs"
         )
         ours_start = time.perf_counter()
-        ours = run(root, CollectOptions(max_frames=args.frames), args.workers)
+        ours = run(root, labelled, args.workers)
         ours_wall = time.perf_counter() - ours_start
-        reference_root = Path(folder) / "reference"
-        store.write_map(reference_root, intersection_map)
-        store.write_scenario(reference_root, scenario)
-        reference = run(
-            reference_root,
-            CollectOptions(renderer="tiny", max_frames=args.reference_frames),
-            workers=1,
-        )
+        if kinds:  # the same suite without labels, in the same run
+            plain_root = Path(folder) / "plain"
+            store.write_map(plain_root, intersection_map)
+            for suffix in ("a", "b"):
+                store.write_scenario(plain_root, dataclasses.replace(
+                    scenario, scenario_id=f"{scenario.scenario_id}_{suffix}"))  # fmt: skip
+            plain_start = time.perf_counter()
+            plain = run(plain_root, CollectOptions(max_frames=args.frames), args.workers)
+            plain_wall = time.perf_counter() - plain_start
+            plain_mb = sum(r.log_bytes for r in plain.of("collected")) / plain.frames / 1e6
+        reference = None
+        if args.reference_frames > 0:
+            reference_root = Path(folder) / "reference"
+            store.write_map(reference_root, intersection_map)
+            store.write_scenario(reference_root, scenario)
+            reference = run(
+                reference_root,
+                CollectOptions(renderer="tiny", max_frames=args.reference_frames),
+                workers=1,
+            )
     collected = ours.of("collected")
     ours_fps = ours.frames / ours_wall
-    reference_fps = reference.frames_per_second
+    reference_fps = reference.frames_per_second if reference is not None else float("nan")
     peak_gib = max(r.peak_rss_bytes for r in collected) / 2**30
     mb_per_frame = sum(r.log_bytes for r in collected) / ours.frames / 1e6
     stages = stage_table(ours)
     print(f"renderer: {collected[0].renderer}; workers: {args.workers}")
     print(f"ours      {ours_fps:6.2f} frames/s  ({ours.frames} frames in {ours_wall:.1f} s)")
-    print(
-        f"reference {reference_fps:6.2f} frames/s  (one process, TinyRenderer, "
-        f"{reference.frames} frames)"
-    )
-    print(f"ratio     {ours_fps / reference_fps:6.2f}x")
+    if reference is not None:
+        print(
+            f"reference {reference_fps:6.2f} frames/s  (one process, TinyRenderer, "
+            f"{reference.frames} frames)"
+        )
+        print(f"ratio     {ours_fps / reference_fps:6.2f}x")
+    if kinds:
+        plain_fps = plain.frames / plain_wall
+        print(
+            f"without labels {plain_fps:6.2f} frames/s (reference), with {','.join(kinds)} at "
+            f"1/{args.label_scale} resolution {ours_fps:6.2f}: {100 * (plain_fps / ours_fps - 1):.1f}% "
+            f"slower; log {plain_mb:.2f} -> {sum(r.log_bytes for r in collected) / ours.frames / 1e6:.2f} MB per frame"
+        )
     print("per frame, ms (summed over workers):")
     for stage, milliseconds in stages.items():
         print(f"  {stage:<13} {milliseconds:7.1f}")

@@ -57,6 +57,10 @@ def compressed_image(t_ns: int, frame_id: str, jpeg: bytes) -> CompressedImage:
     return _stamp(CompressedImage(frame_id=frame_id, data=jpeg, format="jpeg"), t_ns)
 
 
+def png_image(t_ns: int, frame_id: str, png: bytes) -> CompressedImage:
+    return _stamp(CompressedImage(frame_id=frame_id, data=png, format="png"), t_ns)
+
+
 def camera_calibration(t_ns: int, camera: Camera) -> CameraCalibration:
     k = camera.intrinsic
     projection = np.hstack([k, np.zeros((3, 1))])

@@ -92,6 +92,28 @@ class LogReader:
         (lidar,) = self.rig["lidar"].values()
         return np.array(lidar["sensor_to_ego"], np.float64)
 
+    @property
+    def camera_label_kinds(self) -> tuple[str, ...]:
+        """The dense label kinds logged per camera (`collect --camera-labels`); () for none."""
+        record = self.metadata.get(topics.CAMERA_LABELS_METADATA)
+        return tuple(record["kinds"].split(",")) if record else ()
+
+    @property
+    def camera_label_info(self) -> dict[str, Any]:
+        """The labels' record: kinds, scale, width, height, depth unit, the semantic class
+        names and the instance values' track ids (index k is instance value k + 1)."""
+        record = self.metadata.get(topics.CAMERA_LABELS_METADATA)
+        if not record:
+            return {}
+        return {
+            "kinds": tuple(record["kinds"].split(",")),
+            "scale": int(record["scale"]),
+            "size": (int(record["width"]), int(record["height"])),
+            "depth_unit": record["depth_unit"],
+            "semantic_classes": tuple(json.loads(record["semantic_classes"])),
+            "instance_track_ids": tuple(json.loads(record["instance_track_ids"])),
+        }
+
     def close(self) -> None:
         self._file.close()
 
@@ -192,6 +214,11 @@ class LogReader:
         """Every per-frame topic once at every frame, `/map` once at the first, and the
         summary's counts agreeing; raises `LogFormatError` naming the first gap."""
         expected = set(topics.per_frame_topics(self.cameras))
+        expected |= {
+            topics.camera_label_topic(camera, kind)
+            for camera in self.cameras
+            for kind in self.camera_label_kinds
+        }
         times = {int(t): self.first_frame + i for i, t in enumerate(self.t_ns)}
         seen: Counter[tuple[str, int]] = Counter()
         try:

@@ -37,10 +37,16 @@ SCENARIO_METADATA = "drivee2e.scenario"
 RIG_METADATA = "drivee2e.rig"
 COLLECTION_METADATA = "drivee2e.collection"
 FRAMES_METADATA = "drivee2e.frames"  # written last: first frame, count, times
+CAMERA_LABELS_METADATA = "drivee2e.camera_labels"  # only in logs collected with camera labels
 
 
 def image_topic(camera: str) -> str:
     return f"/{camera}/image_compressed"
+
+
+def camera_label_topic(camera: str, kind: str) -> str:
+    """`/CAM_FRONT/depth`, `/CAM_FRONT/semantic`, `/CAM_FRONT/instance` (PNG images)."""
+    return f"/{camera}/{kind}"
 
 
 def camera_info_topic(camera: str) -> str:

@@ -76,6 +76,7 @@ class LogWriter:
         rig: Rig,
         motion: EgoMotion,
         collection: dict[str, str],
+        camera_labels: dict[str, str] | None = None,
     ) -> None:
         self.path, self.partial = path, partial_path(path)
         self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
@@ -96,6 +97,8 @@ class LogWriter:
         self._writer.add_metadata(
             topics.COLLECTION_METADATA, {"drivee2e_version": __version__, **collection}
         )
+        if camera_labels:
+            self._writer.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
         self.sensors = {c.name: c.sensor_to_ego for c in rig.cameras}
         self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
         self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
@@ -126,6 +129,11 @@ class LogWriter:
                 messages.compressed_image(t, camera.name, frame.jpeg[camera.name]),
             )
         self._writer.flush()
+        if frame.camera_labels:  # a chunk of their own: the loader's image reads skip them
+            for camera, images in frame.camera_labels.items():
+                for kind, png in images.items():
+                    put(topics.camera_label_topic(camera, kind), messages.png_image(t, camera, png))
+            self._writer.flush()
         put(topics.LIDAR, messages.lidar_cloud(t, self.rig.lidar.name, frame.lidar))
         for radar in self.rig.radars:
             put(

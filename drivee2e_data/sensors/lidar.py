@@ -27,6 +27,7 @@ INTENSITY = {
     "building": 0.3,
     "vegetation": 0.1,
     "signal": 0.45,
+    "pole": 0.45,
     "obstacle": 0.6,
 }
 AGENT_INTENSITY = 0.5

@@ -17,14 +17,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import SignalState
-from drivee2e_data.sensors import annotate, bev, lidar, radar
+from drivee2e_data.sensors import annotate, bev, camera_labels, lidar, radar
 from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render, with_conditions
+from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sensors.imu_gnss import enu_to_wgs84, imu
 from drivee2e_data.sensors.rig import Rig, default_rig
 from drivee2e_data.sim.world import World
 
-STAGES = ("render", "post_process", "jpeg", "lidar", "radar", "annotate", "bev")
+STAGES = ("render", "post_process", "jpeg", "labels", "lidar", "radar", "annotate", "bev")
 ANNOTATION_RANGE_M = 100.0  # boxes farther from the ego than this are not annotated
 
 
@@ -34,6 +35,8 @@ class SuiteOptions:
     image_size: tuple[int, int] | None = None  # (width, height); None: the rig's 1600x900
     jpeg_quality: int = 85
     bev_size_px: int = bev.DEFAULT_SIZE_PX
+    camera_labels: tuple[str, ...] = ()  # some of camera_labels.LABEL_KINDS
+    label_scale: int = DEFAULT_LABEL_SCALE
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,8 @@ class SensorFrame:
     signals: dict[str, SignalState]
     bev_jpeg: bytes
     seconds: dict[str, float] = field(default_factory=dict)  # wall time per stage
+    # camera name -> label kind -> PNG bytes (with SuiteOptions.camera_labels)
+    camera_labels: dict[str, dict[str, bytes]] = field(default_factory=dict)
 
 
 class SensorSuite:
@@ -83,6 +88,19 @@ class SensorSuite:
         scenario = world.scenario
         self.motion: EgoMotion = ego_motion(scenario)
         self.imu_acceleration, self.imu_angular_velocity = imu(scenario.ego)
+        unknown = set(self.options.camera_labels) - set(camera_labels.LABEL_KINDS)
+        if unknown:
+            raise ValueError(
+                f"camera label {sorted(unknown)[0]!r}: expected some of "
+                f"{', '.join(camera_labels.LABEL_KINDS)}"
+            )
+        self.instance_index = {t.track_id: k for k, t in enumerate(scenario.tracks)}
+        self.label_tables = camera_labels.LabelTables.build(
+            world.twin.segmentation,
+            world.bodies,
+            {t.track_id: t.agent_class for t in scenario.tracks},
+            self.instance_index,
+        )
 
     def capture(self, frame: int) -> SensorFrame:
         world, scenario, seconds = self.world, self.world.scenario, dict.fromkeys(STAGES, 0.0)
@@ -92,6 +110,7 @@ class SensorSuite:
         world.set_time(frame)
         views: list[CameraFrame] = []
         jpeg: dict[str, bytes] = {}
+        labels: dict[str, dict[str, bytes]] = {}
         for camera in self.rig.cameras:
             with _timed(seconds, "render"):
                 view = render(world, camera, ego_to_world, mask=True)
@@ -99,6 +118,15 @@ class SensorSuite:
                 rgb = with_conditions(world, view, frame)
             with _timed(seconds, "jpeg"):
                 jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
+            if self.options.camera_labels and view.mask is not None:
+                with _timed(seconds, "labels"):
+                    images = camera_labels.label_images(
+                        view.depth_m, view.mask, self.label_tables, self.options.label_scale,
+                        self.options.camera_labels,
+                    )  # fmt: skip
+                    labels[camera.name] = {
+                        kind: camera_labels.encode_png(image) for kind, image in images.items()
+                    }
             views.append(view)
         with _timed(seconds, "lidar"):
             lidar_to_world = ego_to_world @ self.rig.lidar.sensor_to_ego
@@ -144,6 +172,7 @@ class SensorSuite:
             signals={s.signal_id: s.state_at(frame) for s in scenario.signals},
             bev_jpeg=bev_jpeg,
             seconds=seconds,
+            camera_labels=labels,
         )
 
     def _annotate(

@@ -256,7 +256,7 @@ class TwinBuilder:
             0.0,
             np.array([0.15, 0.15, z]),
             (0.2, 0.2, 0.2, 1.0),
-            "signal",
+            "pole",
         )
         self._box(
             np.array([x, y, z + 0.45]),
