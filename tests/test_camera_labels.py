@@ -136,3 +136,40 @@ def test_labels_through_the_log_into_the_dataset(synthetic_root, tmp_path) -> No
         DriveE2EDataset(root, "all", camera_labels=("normals",))
     # the nuScenes export reads such logs as any other (the label topics are not its business)
     assert main(["export", "nuscenes", str(root), "--out", str(tmp_path / "nuscenes")]) == 0
+
+
+def test_map_dividers_lie_on_the_rendered_paint(synthetic_scenarios, synthetic_root) -> None:
+    """Across each divider label, every 0.5 m, the painted line's middle (single or double)
+    is within 10 cm of the label; dashes leave gaps, so a third of the points at least."""
+    from drivee2e_data.loaders.map_labels import MAP_CLASSES, map_elements
+
+    scenario = synthetic_scenarios[0]
+    intersection_map = store.read_map(synthetic_root, scenario.map_id)
+    elements = map_elements(intersection_map)
+    with World(intersection_map, scenario) as world:
+        paint = shapely.union_all([g for kind, g in world.twin.paint if kind == "road_mark"])
+    divider = MAP_CLASSES.index("divider")
+    checked = 0
+    for polyline, label in zip(elements.polylines_m, elements.labels, strict=True):
+        if label != divider:
+            continue
+        line = shapely.LineString(polyline)
+        offsets, hits = [], 0
+        distances = np.arange(0.25, line.length - 0.25, 0.5)
+        for s in distances:
+            a, b = line.interpolate(s - 0.05), line.interpolate(s + 0.05)
+            direction = np.array([b.x - a.x, b.y - a.y])
+            normal = np.array([-direction[1], direction[0]]) / np.linalg.norm(direction)
+            point = np.array(line.interpolate(s).coords[0])
+            across = shapely.LineString([point - 0.4 * normal, point + 0.4 * normal])
+            painted = across.intersection(paint)
+            if painted.is_empty:
+                continue
+            hits += 1
+            ends = np.asarray(shapely.get_coordinates(painted)) - point
+            along_normal = ends @ normal
+            offsets.append(0.5 * (along_normal.min() + along_normal.max()))
+        assert hits >= len(distances) / 3 - 1, hits
+        assert np.max(np.abs(offsets)) <= 0.10
+        checked += 1
+    assert checked >= 4
