@@ -260,8 +260,10 @@ def _init_worker() -> None:
     for name in ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, "1")
     import cv2
+    import torch  # spawn imported the parent's main module, torch with it: too late for the env
 
     cv2.setNumThreads(1)
+    torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit.register(close_process_state)  # the world's EGL context closes quietly
 
