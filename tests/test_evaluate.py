@@ -213,3 +213,21 @@ def test_camera_policy_trains_and_drives_with_its_cameras(
     (row,) = episodes(out).values()
     assert row["failure"] == "" and row["steps"] > 10
     assert os.path.getsize(out / "table.md") > 0
+
+
+def test_a_clip_without_an_ego_is_an_error_row_and_the_run_goes_on(
+    three_clips: Path, tmp_path: Path
+) -> None:
+    import dataclasses
+    import shutil
+
+    root = tmp_path / "data"
+    shutil.copytree(three_clips, root, ignore=shutil.ignore_patterns("results"))
+    broken = store.read_scenario(root, store.scenario_ids(root)[0])
+    store.write_scenario(root, dataclasses.replace(broken, ego_id=None, route=None))
+    out = tmp_path / "run"
+    assert main(["evaluate", str(root), "--split", "all", "--out", str(out)]) == 0
+    rows = episodes(out)
+    assert rows[broken.scenario_id]["status"] == "error"
+    assert "has no ego" in rows[broken.scenario_id]["failure"]
+    assert sum(row["status"] == "completed" for row in rows.values()) == 2

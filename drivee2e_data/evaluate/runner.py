@@ -172,7 +172,7 @@ def evaluate_clip(
             write_record(out / RECORDS_FOLDER / f"{scenario_id}.mcap", scenario, intersection_map,
                          result, episode.route_xy, episode.bicycle)  # fmt: skip
         row = result_row(scenario, result, options, len(removed or ()))
-    except DriveE2EError as error:
+    except (DriveE2EError, ValueError, KeyError, OSError) as error:  # this clip only
         row = {"scenario_id": scenario_id, "status": "error", "failure": str(error)}
     row["wall_seconds"] = time.perf_counter() - start
     row["peak_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
