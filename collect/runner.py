@@ -30,6 +30,7 @@ from drivee2e_data.collect.job import LOGS_FOLDER, CollectOptions, JobResult, co
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
+from drivee2e_data.processes import stop_pool
 from drivee2e_data.sensors.ego_state import ego_motion
 
 BACKENDS = ("local", "ray")
@@ -198,10 +199,7 @@ def _run_pool(
                     )
         _drain(frames_done, tick)
     except BaseException:
-        # Ctrl-C or an error here: stop the workers now rather than after every queued clip
-        for process in list(getattr(pool, "_processes", {}).values()):
-            process.terminate()
-        pool.shutdown(wait=True, cancel_futures=True)
+        stop_pool(pool)
         raise
     pool.shutdown()
     return results

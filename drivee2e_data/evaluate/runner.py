@@ -37,6 +37,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
+from drivee2e_data.processes import stop_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -296,9 +297,7 @@ def _run_pool(
                 if on_episode is not None:
                     on_episode(row)
     except BaseException:
-        for process in list(getattr(pool, "_processes", {}).values()):
-            process.terminate()
-        pool.shutdown(wait=True, cancel_futures=True)
+        stop_pool(pool)
         raise
     pool.shutdown()
 
