@@ -5,7 +5,7 @@ a naive reference measured in the same run.
         [--camera-labels depth,semantic,instance [--label-scale 4]]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
-written under two scenario ids so that `--workers 2` has two jobs; each is collected for
+written under max(2, --workers) scenario ids so that every worker has a job; each is collected for
 `--frames` frames with six 1600x900 cameras, the 64-channel LiDAR, five radars, the top view and
 annotations. The reference is the same suite in one process with pybullet's TinyRenderer (the
 naive pipeline), over `--reference-frames` frames. Prints frames/s of both and their ratio, the
@@ -63,6 +63,8 @@ def main() -> None:
     parser.add_argument("--label-scale", type=int, default=4)
     args = parser.parse_args()
     kinds = tuple(k for k in args.camera_labels.split(",") if k)
+    # one job per worker at least (two at least), so every worker has a clip to collect
+    suffixes = [f"j{k}" for k in range(max(2, args.workers))]
     labelled = CollectOptions(
         max_frames=args.frames, camera_labels=kinds, label_scale=args.label_scale
     )
@@ -70,14 +72,14 @@ def main() -> None:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
         root = Path(folder) / "data"
         store.write_map(root, intersection_map)
-        for suffix in ("a", "b"):
+        for suffix in suffixes:
             store.write_scenario(
                 root, dataclasses.replace(scenario, scenario_id=f"{scenario.scenario_id}_{suffix}")
             )
         print(
             f"clip {scenario.scenario_id}: {len(scenario.tracks)} agents, "
             f"{len(intersection_map.metadata['arms'])}-way, {scenario.conditions.weather.value}, "
-            f"{scenario.conditions.time_of_day.value}; {args.frames} frames x 2 jobs"
+            f"{scenario.conditions.time_of_day.value}; {args.frames} frames x {len(suffixes)} jobs"
         )
         ours_start = time.perf_counter()
         ours = run(root, labelled, args.workers)
@@ -85,7 +87,7 @@ def main() -> None:
         if kinds:  # the same suite without labels, in the same run
             plain_root = Path(folder) / "plain"
             store.write_map(plain_root, intersection_map)
-            for suffix in ("a", "b"):
+            for suffix in suffixes:
                 store.write_scenario(plain_root, dataclasses.replace(
                     scenario, scenario_id=f"{scenario.scenario_id}_{suffix}"))  # fmt: skip
             plain_start = time.perf_counter()
