@@ -86,6 +86,16 @@ class GeoOrigin:
             )
 
 
+def line_heading_at(
+    line: shapely.LineString, point: shapely.Point, half_window_m: float = 0.5
+) -> float:
+    """Heading (rad) of `line` at the point nearest `point`, over +-`half_window_m`."""
+    s = line.project(point)
+    a = line.interpolate(max(s - half_window_m, 0.0))
+    b = line.interpolate(min(s + half_window_m, line.length))
+    return float(np.arctan2(b.y - a.y, b.x - a.x))
+
+
 def _polyline(where: str, values: object, min_points: int = 2) -> NDArray[np.float64]:
     array = frozen_array(values, np.float64)
     if array.ndim != 2 or array.shape[1] not in (2, 3):
@@ -146,10 +156,7 @@ class Lane(ArrayValueEq):
     def heading_at(self, x_m: float, y_m: float, half_window_m: float = 0.5) -> float:
         """Heading (rad) of the centre line at the point nearest (x, y), over +-`half_window_m`."""
         line = shapely.LineString(self.centerline_m[:, :2])
-        s = line.project(shapely.Point(x_m, y_m))
-        a = line.interpolate(max(s - half_window_m, 0.0))
-        b = line.interpolate(min(s + half_window_m, line.length))
-        return float(np.arctan2(b.y - a.y, b.x - a.x))
+        return line_heading_at(line, shapely.Point(x_m, y_m), half_window_m)
 
     def polygon(self) -> shapely.Polygon:
         """The lane's surface as a polygon (left boundary forward, right boundary back)."""

@@ -18,10 +18,10 @@ import torch
 from torch import nn
 
 from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents import training
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Waypoints
-from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 
 HIDDEN = 512
@@ -80,16 +80,8 @@ class ADMLP(nn.Module):
 def extract(
     dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
 ) -> dict[str, torch.Tensor]:
-    """Features, targets and masks of every sample, in dataset order."""
-    rows: dict[str, list[torch.Tensor]] = {"x": [], "y": [], "mask": []}
-    for start in range(0, len(dataset), 256):
-        batch = collate([dataset[i] for i in range(start, min(start + 256, len(dataset)))])
-        rows["x"].append(features(batch))
-        rows["y"].append(batch["gt_ego_fut_trajs"].float())
-        rows["mask"].append(batch["gt_ego_fut_masks"])
-        if progress is not None:
-            progress(len(batch["ego_status"]))
-    return {key: torch.cat(value) for key, value in rows.items()}
+    """Features `x`, targets `y` and masks of every sample, in dataset order."""
+    return training.extract(dataset, lambda batch: {"x": features(batch)}, 256, progress)
 
 
 def train(

@@ -17,10 +17,10 @@ import torch
 from torch import nn
 
 from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents import training
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
-from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.sensors.rig import Rig
@@ -102,19 +102,14 @@ def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2E
 def extract(
     dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
 ) -> dict[str, torch.Tensor]:
-    rows: dict[str, list[torch.Tensor]] = {"images": [], "vector": [], "y": [], "mask": []}
-    for start in range(0, len(dataset), 64):
-        batch = collate([dataset[i] for i in range(start, min(start + 64, len(dataset)))])
-        rows["images"].append(batch["img"])
+    """Images, vector features, targets `y` and masks of every sample, in dataset order."""
+
+    def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
         speed = batch["ego_status"][:, 6]
-        rows["vector"].append(
-            vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
-        )
-        rows["y"].append(batch["gt_ego_fut_trajs"].float())
-        rows["mask"].append(batch["gt_ego_fut_masks"])
-        if progress is not None:
-            progress(len(speed))
-    return {key: torch.cat(value) for key, value in rows.items()}
+        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
+        return {"images": batch["img"], "vector": vector}
+
+    return training.extract(dataset, inputs, 64, progress)
 
 
 def train(

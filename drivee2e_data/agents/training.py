@@ -11,8 +11,10 @@ from typing import Any
 
 import torch
 from torch import nn
+from torch.utils.data import Dataset
 
 from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.loaders.collate import collate
 
 
 @dataclass(frozen=True)
@@ -21,6 +23,29 @@ class TrainOptions:
     batch_size: int = 64
     learning_rate: float = 1e-3
     seed: int = 0
+
+
+def extract(
+    dataset: Dataset,
+    inputs: Callable[[dict[str, Any]], dict[str, torch.Tensor]],
+    batch_size: int,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, torch.Tensor]:
+    """Every sample of `dataset` in order, collated `batch_size` at a time: the model's
+    `inputs(batch)` beside the targets `y` (the 2 Hz future) and their `mask`."""
+    rows: dict[str, list[torch.Tensor]] = {}
+    for start in range(0, len(dataset), batch_size):
+        batch = collate([dataset[i] for i in range(start, min(start + batch_size, len(dataset)))])
+        columns = {
+            **inputs(batch),
+            "y": batch["gt_ego_fut_trajs"].float(),
+            "mask": batch["gt_ego_fut_masks"],
+        }
+        for key, value in columns.items():
+            rows.setdefault(key, []).append(value)
+        if progress is not None:
+            progress(len(batch["gt_ego_fut_trajs"]))
+    return {key: torch.cat(value) for key, value in rows.items()}
 
 
 def fit(

@@ -22,7 +22,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.geometry import box_corners_2d, boxes_overlap, polyline_arclength, wrap_angle
-from drivee2e_data.hdmap import IntersectionMap, Lane, LaneType
+from drivee2e_data.hdmap import IntersectionMap, Lane, LaneType, line_heading_at
 from drivee2e_data.scenario import AgentClass, SignalState
 
 # CARLA ends a route 30 m off it on kilometre-long routes; an intersection's lanes are 3-4 m wide,
@@ -256,7 +256,7 @@ class MapRules:
             if self.lane_in_junction[index]:
                 return "junction"
             if (
-                abs(float(wrap_angle(_heading(self.lane_lines[index], point) - yaw_rad)))
+                abs(float(wrap_angle(line_heading_at(self.lane_lines[index], point) - yaw_rad)))
                 <= LANE_HEADING_TOLERANCE_RAD
             ):
                 same_direction = True  # fmt: skip
@@ -279,7 +279,7 @@ class MapRules:
             if not path.intersects(stop.line):
                 continue
             for lane in stop.lanes:
-                heading = _heading(lane.centre, shapely.Point(*front_before_m))
+                heading = line_heading_at(lane.centre, shapely.Point(*front_before_m))
                 aligned = abs(float(wrap_angle(heading - yaw_rad))) <= LANE_HEADING_TOLERANCE_RAD
                 red = all(signal_states.get(s) is SignalState.RED for s in lane.signal_ids)
                 if aligned and red and lane.area.intersects(path):
@@ -298,13 +298,6 @@ def _holding_signals(
         following = route[route.index(lane.lane_id) + 1]
         successors = [m for m in successors if m.lane_id == following] or successors
     return tuple(sorted({m.signal_id for m in successors if m.signal_id is not None}))
-
-
-def _heading(line: shapely.LineString, point: shapely.Point, half_window_m: float = 0.5) -> float:
-    s = line.project(point)
-    a = line.interpolate(max(s - half_window_m, 0.0))
-    b = line.interpolate(min(s + half_window_m, line.length))
-    return float(np.arctan2(b.y - a.y, b.x - a.x))
 
 
 def longest_stop_s(speed_mps: NDArray[np.float64], step_s: float = 0.1) -> float:
