@@ -581,10 +581,9 @@ def _evaluate(args: argparse.Namespace) -> int:
         clips = [c for c in clips if c in set(args.only)]
     if not clips:
         raise DriveE2EError(f"{manifest}: split {args.split!r} has no clips to evaluate")
-    variants.read_variant(args.data, Variant(args.variant))  # missing: say so before starting
     out = args.out or args.data / runner.RESULTS_FOLDER / runner.run_name(options, args.split)
     with tqdm(total=len(clips), unit="episode", desc="evaluating", disable=None) as bar:
-        bar.update(len(clips) - len(runner.prepare_run(out, options, clips)))
+        bar.update(len(clips) - len(runner.prepare_run(args.data, out, options, clips)))
 
         def done(row: dict) -> None:
             bar.update(1)

@@ -44,9 +44,9 @@ def build(spec: str, checkpoint: Path | None = None) -> Any:
     """An agent instance: built with `checkpoint` when its constructor takes one."""
     agent_class = resolve(spec)
     parameters = inspect.signature(agent_class).parameters
-    agent = agent_class(checkpoint) if "checkpoint" in parameters else agent_class()
     if checkpoint is not None and "checkpoint" not in parameters:
         raise DriveE2EError(f"agent {spec!r} takes no checkpoint")
+    agent = agent_class(checkpoint) if "checkpoint" in parameters else agent_class()
     for attribute, default in (("name", spec), ("sensors", ()), ("image_size", None)):
         if not hasattr(agent, attribute):
             setattr(agent, attribute, default)

@@ -119,7 +119,7 @@ class Episode:
             agent,
             options,
         )
-        self.world, self.keep_trace = world, keep_trace
+        self.keep_trace = keep_trace
         route_lanes = scenario.route.lane_ids if scenario.route is not None else ()
         self.rules = map_rules or MapRules(intersection_map, route_lanes)
         self.motion = ego_motion(scenario)

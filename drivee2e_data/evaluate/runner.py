@@ -72,8 +72,12 @@ def run_name(options: EvaluationOptions, split: str) -> str:
     return f"{agent}-{split}-{options.variant}{traffic}"
 
 
-def prepare_run(out: Path, options: EvaluationOptions, scenario_ids: list[str]) -> list[str]:
-    """Create or reopen the run folder; the clips still without a result."""
+def prepare_run(
+    root: Path, out: Path, options: EvaluationOptions, scenario_ids: list[str]
+) -> list[str]:
+    """Create or reopen the run folder; the clips still without a result. A missing occlusion
+    variant fails here, before the folder or any episode."""
+    read_variant(root, Variant(options.variant))
     out.mkdir(parents=True, exist_ok=True)
     run_file = out / "run.json"
     identity = options.identity()
@@ -240,8 +244,7 @@ def evaluate(
     on_episode: Callable[[dict[str, Any]], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Evaluate the clips without a result yet; returns every clip's row (old and new)."""
-    read_variant(root, Variant(options.variant))  # a missing variant fails before any episode
-    pending = prepare_run(out, options, scenario_ids)
+    pending = prepare_run(root, out, options, scenario_ids)
     if workers <= 1 or len(pending) <= 1:
         try:
             for scenario_id in pending:
