@@ -92,9 +92,7 @@ def label_metadata(suite: SensorSuite, options: CollectOptions) -> dict[str, str
         "height": str(len(range(offset, camera.height, scale))),
         "depth_unit": "mm (0: no hit or beyond 65.535 m)",
         "semantic_classes": json.dumps(list(SEMANTIC_CLASSES)),
-        "instance_track_ids": json.dumps(
-            [t for t, _ in sorted(suite.instance_index.items(), key=lambda item: item[1])]
-        ),
+        "instance_track_ids": json.dumps([t.track_id for t in suite.world.scenario.tracks]),
     }
 
 

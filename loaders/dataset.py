@@ -216,6 +216,8 @@ class DriveE2EDataset(Dataset):
             "cameras": cameras,
             "radars": radars,
             "map_id": str(log.scenario_meta["map_id"]),
+            # parsed once per log: a sample's instance values index these
+            "instance_track_ids": log.camera_label_info.get("instance_track_ids", ()),
         }
 
     def log_path(self, scenario_id: str) -> Path:
@@ -371,7 +373,7 @@ class DriveE2EDataset(Dataset):
                     )
                 )
         if self.camera_labels:
-            result.update(self._camera_labels(log, frame, cameras))
+            result.update(self._camera_labels(log, frame, info))
         if self.with_lidar:
             (cloud,) = self._read(log, frame, [topics.LIDAR], PointCloud)
             rows = cloud_rows(cloud)
@@ -383,8 +385,9 @@ class DriveE2EDataset(Dataset):
             result["radar_points"] = torch.from_numpy(self._radar(log, frame, info))
         return result
 
-    def _camera_labels(self, log: LogReader, frame: int, cameras: dict[str, Any]) -> dict[str, Any]:
+    def _camera_labels(self, log: LogReader, frame: int, info: dict[str, Any]) -> dict[str, Any]:
         """The frame's dense labels per camera, resized nearest to the images' size."""
+        cameras = info["cameras"]
         topic_names = [
             topics.camera_label_topic(c, k) for c in self.cameras for k in self.camera_labels
         ]
@@ -406,7 +409,7 @@ class DriveE2EDataset(Dataset):
             result["cam_semantic"] = torch.from_numpy(np.stack(stacks["semantic"]))
         if "instance" in stacks:
             result["cam_instance"] = torch.from_numpy(np.stack(stacks["instance"]).astype(np.int64))
-            result["cam_instance_ids"] = list(log.camera_label_info["instance_track_ids"])
+            result["cam_instance_ids"] = list(info["instance_track_ids"])
         return result
 
     def jpegs(self, log: LogReader, scenario_id: str, frame: int) -> list[bytes]:

@@ -95,8 +95,7 @@ class LogReader:
     @property
     def camera_label_kinds(self) -> tuple[str, ...]:
         """The dense label kinds logged per camera (`collect --camera-labels`); () for none."""
-        record = self.metadata.get(topics.CAMERA_LABELS_METADATA)
-        return tuple(record["kinds"].split(",")) if record else ()
+        return self.camera_label_info.get("kinds", ())
 
     @property
     def camera_label_info(self) -> dict[str, Any]:

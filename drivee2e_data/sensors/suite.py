@@ -94,13 +94,16 @@ class SensorSuite:
                 f"camera label {sorted(unknown)[0]!r}: expected some of "
                 f"{', '.join(camera_labels.LABEL_KINDS)}"
             )
+        # instance value k + 1 is the clip's k-th track
         self.instance_index = {t.track_id: k for k, t in enumerate(scenario.tracks)}
-        self.label_tables = camera_labels.LabelTables.build(
-            world.twin.segmentation,
-            world.bodies,
-            {t.track_id: t.agent_class for t in scenario.tracks},
-            self.instance_index,
-        )
+        self.label_tables = None
+        if self.options.camera_labels:
+            self.label_tables = camera_labels.LabelTables.build(
+                world.twin.segmentation,
+                world.bodies,
+                {t.track_id: t.agent_class for t in scenario.tracks},
+                self.instance_index,
+            )
 
     def capture(self, frame: int) -> SensorFrame:
         world, scenario, seconds = self.world, self.world.scenario, dict.fromkeys(STAGES, 0.0)
@@ -118,7 +121,7 @@ class SensorSuite:
                 rgb = with_conditions(world, view, frame)
             with _timed(seconds, "jpeg"):
                 jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
-            if self.options.camera_labels and view.mask is not None:
+            if self.label_tables is not None and view.mask is not None:
                 with _timed(seconds, "labels"):
                     images = camera_labels.label_images(
                         view.depth_m, view.mask, self.label_tables, self.options.label_scale,
