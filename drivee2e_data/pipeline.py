@@ -371,16 +371,6 @@ def statistics(summaries: list[ScenarioSummary]) -> dict[str, Counter[str]]:
     return dict(zip(STATISTIC_PANELS, (behaviour, classes, weather, time_of_day), strict=True))
 
 
-LOCAL_HOUR_OF = {
-    "early_morning": 6.2,
-    "morning": 9.0,
-    "noon": 12.5,
-    "afternoon": 15.5,
-    "dusk": 18.4,
-    "night": 22.0,
-}
-
-
 def write_view(
     root: Path,
     scenario_id: str,
@@ -393,13 +383,13 @@ def write_view(
     """Render the contact sheet of one frame of a stored scenario to a PNG, optionally under
     another weather or time of day (the sun is placed for that local solar hour)."""
     import dataclasses
-    from datetime import timedelta
 
     import cv2
 
     from drivee2e_data.scenario import TimeOfDay, Weather
     from drivee2e_data.sensors.contact_sheet import contact_sheet
     from drivee2e_data.sim.world import World
+    from drivee2e_data.sun import start_time_for
 
     scenario = store.read_scenario(root, scenario_id)
     intersection_map = store.read_map(root, scenario.map_id)
@@ -407,12 +397,11 @@ def write_view(
     if weather is not None:
         conditions = dataclasses.replace(conditions, weather=Weather(weather))
     if time_of_day is not None:
-        start = conditions.start_time_utc.replace(hour=0, minute=0, second=0, microsecond=0)
-        hours = LOCAL_HOUR_OF[time_of_day] - intersection_map.origin.longitude_deg / 15.0
+        start = start_time_for(
+            TimeOfDay(time_of_day), conditions.start_time_utc.date(), intersection_map.origin
+        )
         conditions = dataclasses.replace(
-            conditions,
-            time_of_day=TimeOfDay(time_of_day),
-            start_time_utc=start + timedelta(hours=hours),
+            conditions, time_of_day=TimeOfDay(time_of_day), start_time_utc=start
         )
     scenario = dataclasses.replace(scenario, conditions=conditions)
     if not 0 <= frame < scenario.num_frames:

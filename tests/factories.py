@@ -74,3 +74,23 @@ def small_map(**overrides) -> IntersectionMap:
     )
     fields.update(overrides)
     return IntersectionMap(**fields)
+
+
+def assert_sun_matches_label(conditions: Conditions, origin: GeoOrigin) -> None:
+    """The sun the renderer places for a clip agrees with its time-of-day label: high for
+    morning, noon and afternoon, low but up for early morning and dusk, street lights at night."""
+    import math
+
+    from drivee2e_data.sim.conditions import lighting
+    from drivee2e_data.sun import sun_position
+
+    elevation = math.degrees(sun_position(conditions.start_time_utc, origin)[1])
+    label = conditions.time_of_day
+    where = f"{label.value} at {conditions.start_time_utc.isoformat()} ({origin})"
+    assert lighting(conditions, origin).night == (label == TimeOfDay.NIGHT), where
+    if label in (TimeOfDay.MORNING, TimeOfDay.NOON, TimeOfDay.AFTERNOON):
+        assert elevation >= 15.0, where
+    elif label in (TimeOfDay.EARLY_MORNING, TimeOfDay.DUSK):
+        assert -4.0 <= elevation < 15.0, where
+    else:
+        assert elevation < -4.0, where

@@ -13,6 +13,7 @@ from drivee2e_data.geometry import rotation_from_quaternion
 from drivee2e_data.scenario import AgentClass, SignalState
 from drivee2e_data.sources import argoverse2, commonroad, lanelet2, sind
 from drivee2e_data.sources.common import read_csv_rows
+from tests.factories import assert_sun_matches_label
 
 pytestmark = pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is absent")
 AV2 = REALDATA / "argoverse2"
@@ -113,6 +114,19 @@ def test_commonroad_intersection():
         REALDATA / "commonroad" / "USA_Lanker-1_1_T-1.xml"
     )  # 2018b
     assert _count(older.scenario, {AgentClass.CAR}) == 24 and not older.scenario.signals
+
+
+def test_every_real_import_renders_the_sun_its_label_says(sensor_log, forecasting):
+    imports = [
+        sensor_log,
+        forecasting,
+        commonroad.import_commonroad(REALDATA / "commonroad" / "USA_Peach-4_8_T-1.xml"),
+    ]
+    for imported in imports:
+        assert_sun_matches_label(imported.scenario.conditions, imported.intersection_map.origin)
+    for city in ("Changchun", "Chongqing", "Tianjin", "Xian"):
+        imported = sind.import_sind(REALDATA / "sind" / "Data" / city)
+        assert_sun_matches_label(imported.recording.conditions, imported.intersection_map.origin)
 
 
 def test_lanelet2_example_map():

@@ -13,6 +13,7 @@ from drivee2e_data.cli import main
 from drivee2e_data.errors import ScenarioFormatError
 from drivee2e_data.scenario import AgentClass, SignalState, SubScenario, TimeOfDay, Weather
 from drivee2e_data.sources import drivee2e_clip, v2x_seq
+from tests.factories import assert_sun_matches_label
 
 SUB_TYPES = ["Car", "Van", "Truck", "Bus", "Pedestrian", "Cyclist", "Tricyclist", "Motorcyclist"]
 BASE = (417_700.0, 4_731_500.0)  # a shifted UTM 50 frame, as in the published files
@@ -158,6 +159,7 @@ def test_v2x_seq_scene(v2x_folder: Path):
     assert np.allclose(
         m.lane("2").left_boundary_m[0, :2] - m.lane("2").right_boundary_m[0, :2], [0, 3.5]
     )
+    assert_sun_matches_label(scenario.conditions, m.origin)
 
 
 def test_drivee2e_clip_with_route(tmp_path: Path):
@@ -176,10 +178,14 @@ def test_drivee2e_clip_with_route(tmp_path: Path):
     assert scenario.ego_id == "100"
     assert scenario.conditions.weather == Weather.RAIN  # precipitation 60 overrides 'Cloudy'
     assert scenario.conditions.time_of_day == TimeOfDay.NIGHT  # the sun is below the horizon
+    assert_sun_matches_label(scenario.conditions, result.intersection_map.origin)
     assert scenario.track("103").metadata["blueprint"] == "vehicle.bp.bus"
     assert scenario.metadata["imported_category"] == "YLW" and scenario.behavior is None
-    straight = drivee2e_clip.conditions_of("Cloudy", {"sun_altitude_angle": 60.0}, 0)
+    straight = drivee2e_clip.conditions_of(
+        "Cloudy", {"sun_altitude_angle": 60.0}, 0, result.intersection_map.origin
+    )
     assert straight.weather == Weather.CLOUDY and straight.time_of_day == TimeOfDay.NOON
+    assert_sun_matches_label(straight, result.intersection_map.origin)
     (tmp_path / "route.xml").write_text(
         '<routes><route scenario_csv_id="STR_000" ego_id="101"/></routes>'
     )
@@ -333,6 +339,7 @@ def test_interaction_tracks_and_map(tmp_path: Path):
     width = lane.left_boundary_m[0, 1] - lane.right_boundary_m[0, 1]
     assert width == pytest.approx(3.32, abs=0.02)
     assert lane.left_mark.pattern.value == "dashed" and len(result.intersection_map.kerbs) == 1
+    assert_sun_matches_label(result.scenario.conditions, result.intersection_map.origin)
 
 
 def test_a_cropped_map_drops_references_outside_it_with_one_warning(

@@ -165,7 +165,7 @@ def test_sun_position_known_answers():
     from datetime import datetime, timezone
 
     from drivee2e_data.hdmap import GeoOrigin
-    from drivee2e_data.sim.conditions import sun_position
+    from drivee2e_data.sun import sun_position
 
     beijing = GeoOrigin(39.9, 116.4)
     azimuth, elevation = sun_position(datetime(2026, 6, 21, 4, 16, tzinfo=timezone.utc), beijing)

@@ -10,6 +10,7 @@ from drivee2e_data import pipeline, store
 from drivee2e_data.geometry import box_corners_2d, boxes_overlap
 from drivee2e_data.scenario import AgentClass, BehaviorCategory, SignalState
 from drivee2e_data.sources import synthetic
+from tests.factories import assert_sun_matches_label
 
 MAX_VEHICLE_SPEED_MPS = 20.0  # 72 km/h: well above the 50 km/h limit of the synthetic roads
 MAX_VEHICLE_ACCEL_MPS2 = 8.5  # emergency braking is capped at 8 m/s^2 in the traffic model
@@ -71,6 +72,13 @@ def test_every_category_occurs_in_the_default_set(synthetic_scenarios):
     categories = {s.behavior.category for s in synthetic_scenarios}
     assert categories == set(BehaviorCategory)
     assert all(s.behavior.source == "staged" for s in synthetic_scenarios)
+
+
+def test_the_sun_matches_every_clips_time_of_day(synthetic_root: Path, synthetic_scenarios):
+    for scenario in synthetic_scenarios:
+        origin = store.read_map(synthetic_root, scenario.map_id).origin
+        assert_sun_matches_label(scenario.conditions, origin)
+    assert len({s.conditions.time_of_day for s in synthetic_scenarios}) >= 4
 
 
 def test_all_eight_classes_appear(synthetic_scenarios):

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import datetime
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import GeoOrigin
 from drivee2e_data.scenario import Conditions, Weather
+from drivee2e_data.sun import sun_position
 
 # metres of visibility (distance at which contrast falls to 5%); None: clear air
 VISIBILITY_M = {Weather.FOG: 70.0, Weather.RAIN: 400.0, Weather.OVERCAST: 3000.0, Weather.CLOUDY: None,
@@ -34,33 +34,6 @@ class Lighting:
     ambient: float
     diffuse: float
     night: bool
-
-
-def sun_position(time_utc: datetime, origin: GeoOrigin) -> tuple[float, float]:
-    """(azimuth clockwise from north, elevation) of the sun in radians, by the usual
-    declination / equation-of-time approximation (about a degree of error)."""
-    day = time_utc.timetuple().tm_yday
-    hours = time_utc.hour + time_utc.minute / 60 + time_utc.second / 3600
-    gamma = 2 * math.pi / 365 * (day - 1 + (hours - 12) / 24)
-    equation_of_time_min = 229.18 * (0.000075 + 0.001868 * math.cos(gamma) - 0.032077 * math.sin(gamma)
-                                     - 0.014615 * math.cos(2 * gamma) - 0.040849 * math.sin(2 * gamma))  # fmt: skip
-    declination = (0.006918 - 0.399912 * math.cos(gamma) + 0.070257 * math.sin(gamma)
-                   - 0.006758 * math.cos(2 * gamma) + 0.000907 * math.sin(2 * gamma))  # fmt: skip
-    solar_minutes = hours * 60 + equation_of_time_min + 4 * origin.longitude_deg
-    hour_angle = math.radians(solar_minutes / 4 - 180)
-    latitude = math.radians(origin.latitude_deg)
-    cos_zenith = math.sin(latitude) * math.sin(declination) + math.cos(latitude) * math.cos(
-        declination
-    ) * math.cos(hour_angle)
-    zenith = math.acos(max(-1.0, min(1.0, cos_zenith)))
-    azimuth = (
-        math.atan2(
-            math.sin(hour_angle),
-            math.cos(hour_angle) * math.sin(latitude) - math.tan(declination) * math.cos(latitude),
-        )
-        + math.pi
-    )
-    return azimuth % (2 * math.pi), math.pi / 2 - zenith
 
 
 def lighting(conditions: Conditions, origin: GeoOrigin) -> Lighting:

@@ -50,10 +50,10 @@ from drivee2e_data.sources.common import (
     grid_between,
     prune_lane_references,
     resample_track,
-    time_of_day_at,
     utc_from_ns,
     utm_transformer,
 )
+from drivee2e_data.sun import time_of_day_of
 
 SOURCE = "argoverse2"
 # Published AV2 city origins (latitude, longitude of the city frame's (0, 0)) and UTM zones.
@@ -470,9 +470,7 @@ def import_sensor_log(folder: Path) -> Imported:
         t_ns=grid,
         tracks=tuple(tracks),
         signals=(),
-        conditions=Conditions(
-            Weather.CLEAR, time_of_day_at(start, intersection_map.origin.longitude_deg), start
-        ),
+        conditions=Conditions(Weather.CLEAR, time_of_day_of(start, intersection_map.origin), start),
         ego_id=RECORDING_CAR_ID if ego_track is not None and ego_track.valid.all() else None,
         metadata={
             "source_folder": folder.name,
@@ -603,9 +601,7 @@ def import_forecasting(folder: Path) -> Imported:
         t_ns=grid,
         tracks=tuple(tracks),
         signals=(),
-        conditions=Conditions(
-            Weather.CLEAR, time_of_day_at(start, intersection_map.origin.longitude_deg), start
-        ),
+        conditions=Conditions(Weather.CLEAR, time_of_day_of(start, intersection_map.origin), start),
         ego_id=focal if focal in {t.track_id for t in tracks if t.valid.all()} else None,
         metadata={
             "source_folder": folder.name,

@@ -23,7 +23,6 @@ from drivee2e_data.scenario import (
     TRACK_ARRAYS,
     AgentClass,
     Scenario,
-    TimeOfDay,
     Track,
 )
 
@@ -226,12 +225,6 @@ def geo_origin_of_utm(
 ) -> GeoOrigin:
     longitude, latitude = utm_transformer(zone, inverse=True).transform(easting_m, northing_m)
     return GeoOrigin(float(latitude), float(longitude), altitude_m)
-
-
-def time_of_day_at(time_utc: datetime, longitude_deg: float) -> TimeOfDay:
-    """Time-of-day bin from the local mean solar time at a longitude."""
-    hours = time_utc.hour + time_utc.minute / 60 + time_utc.second / 3600
-    return TimeOfDay.from_local_hour((hours + longitude_deg / 15.0) % 24.0)
 
 
 def utc_from_ns(t_ns: int) -> datetime:

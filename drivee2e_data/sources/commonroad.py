@@ -43,6 +43,7 @@ from drivee2e_data.scenario import (
 )
 from drivee2e_data.sources.argoverse2 import Imported
 from drivee2e_data.sources.common import TYPICAL_SIZE_M, ImportReport, resample_track
+from drivee2e_data.sun import start_time_for
 
 SOURCE = "commonroad"
 NOMINAL_START = datetime(2020, 1, 1, 12, 0, tzinfo=timezone.utc)  # the files carry no time of day
@@ -260,10 +261,14 @@ def import_commonroad(path: Path) -> Imported:
         t_ns=grid,
         tracks=tuple(tracks),
         signals=signals,
-        conditions=Conditions(Weather.CLEAR, TimeOfDay.NOON, NOMINAL_START),
+        conditions=Conditions(
+            Weather.CLEAR,
+            TimeOfDay.NOON,
+            start_time_for(TimeOfDay.NOON, NOMINAL_START.date(), intersection_map.origin),
+        ),
         metadata={
             "source_file": path.name,
-            "time": "not recorded; nominal noon",
+            "time": "not recorded; nominal noon (the sun placed for noon at the map origin)",
             "signals": "derived from the traffic-light cycles in the file",
         },
     )

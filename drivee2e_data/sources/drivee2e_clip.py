@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_data.errors import ScenarioFormatError
+from drivee2e_data.hdmap import GeoOrigin
 from drivee2e_data.scenario import (
     BehaviorLabel,
     Conditions,
@@ -25,6 +26,7 @@ from drivee2e_data.scenario import (
 )
 from drivee2e_data.sources.common import ImportReport, read_csv_rows, utc_from_ns
 from drivee2e_data.sources.v2x_seq import V2XImport, map_id_of, read_hdmap, read_trajectories
+from drivee2e_data.sun import start_time_for, time_of_day_of
 
 SOURCE = "drivee2e"
 EXTRA_COLUMNS = ("weather", "ori_clip_index", "blueprint")
@@ -72,8 +74,14 @@ def read_route(path: Path) -> dict[str, object]:
     return {**route.attrib, "weather": parameters}
 
 
-def conditions_of(name: str, parameters: dict[str, float], start_ns: int) -> Conditions:
-    """Our conditions from the CSV's weather name and the route's CARLA weather parameters."""
+def conditions_of(
+    name: str, parameters: dict[str, float], start_ns: int, origin: GeoOrigin
+) -> Conditions:
+    """Our conditions from the CSV's weather name and the route's CARLA weather parameters.
+
+    The route's sun altitude decides the time of day, and the start moves within the clip's
+    UTC date so that the rendered sun earns that label at the map's origin; without a sun in
+    the route, the label is the one the recorded time earns."""
     weather = WEATHER_NAMES.get(name.strip().lower(), Weather.CLEAR)
     if parameters.get("fog_density", 0.0) >= FOG_DENSITY:
         weather = Weather.FOG
@@ -83,9 +91,10 @@ def conditions_of(name: str, parameters: dict[str, float], start_ns: int) -> Con
         weather = Weather.WET
     altitude = parameters.get("sun_altitude_angle")
     azimuth = parameters.get("sun_azimuth_angle", 0.0)
+    start = utc_from_ns(start_ns)
     if altitude is None:
-        time_of_day = TimeOfDay.NOON
-    elif altitude < 0:
+        return Conditions(weather, time_of_day_of(start, origin), start)
+    if altitude < 0:
         time_of_day = TimeOfDay.NIGHT
     elif altitude < 15:
         time_of_day = TimeOfDay.EARLY_MORNING if azimuth < 180 else TimeOfDay.DUSK
@@ -93,7 +102,7 @@ def conditions_of(name: str, parameters: dict[str, float], start_ns: int) -> Con
         time_of_day = TimeOfDay.MORNING if azimuth < 180 else TimeOfDay.AFTERNOON
     else:
         time_of_day = TimeOfDay.NOON
-    return Conditions(weather, time_of_day, utc_from_ns(start_ns))
+    return Conditions(weather, time_of_day, start_time_for(time_of_day, start.date(), origin))
 
 
 def import_clip(clip_csv: Path, route_xml: Path, hdmap: Path) -> V2XImport:
@@ -123,7 +132,9 @@ def import_clip(clip_csv: Path, route_xml: Path, hdmap: Path) -> V2XImport:
         t_ns=grid,
         tracks=tuple(tracks),
         signals=(),
-        conditions=conditions_of(extra["weather"], route["weather"], int(grid[0])),
+        conditions=conditions_of(
+            extra["weather"], route["weather"], int(grid[0]), intersection_map.origin
+        ),
         ego_id=ego_id,
         behavior=label,
         metadata={

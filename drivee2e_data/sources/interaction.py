@@ -25,6 +25,7 @@ from drivee2e_data.sources.common import (
     resample_track,
 )
 from drivee2e_data.sources.sind import NOMINAL_DATE
+from drivee2e_data.sun import start_time_for
 
 SOURCE = "interaction"
 CLASSES = {"car": AgentClass.CAR, "truck": AgentClass.TRUCK, "bus": AgentClass.BUS}
@@ -110,7 +111,14 @@ def import_interaction(track_csvs: list[Path], osm_map: Path) -> Imported:
         t_ns=grid,
         tracks=tuple(tracks),
         signals=(),
-        conditions=Conditions(Weather.CLEAR, TimeOfDay.NOON, NOMINAL_DATE),
-        metadata={"files": [Path(p).name for p in track_csvs], "time and weather": "not recorded"},
+        conditions=Conditions(
+            Weather.CLEAR,
+            TimeOfDay.NOON,
+            start_time_for(TimeOfDay.NOON, NOMINAL_DATE.date(), intersection_map.origin),
+        ),
+        metadata={
+            "files": [Path(p).name for p in track_csvs],
+            "time and weather": "not recorded; clear, and the sun placed for noon at the map origin",
+        },
     )
     return Imported(intersection_map, scenario, report)

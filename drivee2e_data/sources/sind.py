@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from datetime import datetime, timedelta, timezone
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
 from drivee2e_data.errors import ScenarioFormatError
-from drivee2e_data.hdmap import IntersectionMap
+from drivee2e_data.hdmap import GeoOrigin, IntersectionMap
 from drivee2e_data.scenario import (
     AgentClass,
     Conditions,
@@ -39,6 +39,7 @@ from drivee2e_data.sources.common import (
     read_csv_rows,
     resample_track,
 )
+from drivee2e_data.sun import start_time_for
 
 SOURCE = "sind"
 RAW_FRAME_RATE_HZ = (
@@ -197,7 +198,9 @@ def _tracks(
     return tracks
 
 
-def _conditions(folder: Path, report: ImportReport) -> tuple[Conditions, str]:
+def _conditions(folder: Path, origin: GeoOrigin) -> tuple[Conditions, str]:
+    """Weather and the labelled hour from `recording_metas.csv`; the map's origin is nominal, so
+    the start is set for the sun to match that hour's label there (`sun.start_time_for`)."""
     metas = folder / "recording_metas.csv"
     weather, hour, note = Weather.CLEAR, 12.0, "no recording_metas.csv; clear and noon assumed"
     if metas.is_file():
@@ -206,8 +209,10 @@ def _conditions(folder: Path, report: ImportReport) -> tuple[Conditions, str]:
         match = re.match(r"\s*(\d+):(\d+)", rows[0]["Record time period"])
         hour = int(match.group(1)) + int(match.group(2)) / 60 if match else 12.0
         note = "weather and hour from recording_metas.csv; date not given (nominal)"
-    start = NOMINAL_DATE + timedelta(hours=hour - CHINA_UTC_OFFSET_H)
-    return Conditions(weather, TimeOfDay.from_local_hour(hour), start), note
+    time_of_day = TimeOfDay.from_local_hour(hour)
+    return Conditions(
+        weather, time_of_day, start_time_for(time_of_day, NOMINAL_DATE.date(), origin)
+    ), note
 
 
 def import_sind(city_folder: Path, clip_s: float = 20.0) -> SindImport:
@@ -227,7 +232,7 @@ def import_sind(city_folder: Path, clip_s: float = 20.0) -> SindImport:
     if not lights:
         raise ScenarioFormatError(f"{recording}: no traffic-light CSV")
     events, first_ms = read_signal_events(lights[0], report)
-    conditions, note = _conditions(recording, report)
+    conditions, note = _conditions(recording, intersection_map.origin)
     t0_ns = int(conditions.start_time_utc.timestamp()) * 1_000_000_000
     track_files = {
         "Ped_smoothed_tracks.csv": ["track_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy"],

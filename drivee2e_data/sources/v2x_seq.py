@@ -48,9 +48,9 @@ from drivee2e_data.sources.common import (
     prune_lane_references,
     read_csv_rows,
     resample_track,
-    time_of_day_at,
     utc_from_ns,
 )
+from drivee2e_data.sun import time_of_day_of
 
 SOURCE = "v2x_seq"
 UTM_ZONE = 50
@@ -428,9 +428,7 @@ def import_v2x_seq(trajectories: Path, lights: Path | None, hdmap: Path) -> V2XI
         t_ns=grid,
         tracks=tuple(tracks),
         signals=tuple(signals),
-        conditions=Conditions(
-            Weather.CLEAR, time_of_day_at(start, intersection_map.origin.longitude_deg), start
-        ),
+        conditions=Conditions(Weather.CLEAR, time_of_day_of(start, intersection_map.origin), start),
         metadata={"trajectories": trajectories.name, "weather": "not recorded; clear assumed"},
     )
     return V2XImport(intersection_map, scenario, report)

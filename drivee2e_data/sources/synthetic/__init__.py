@@ -24,7 +24,6 @@ from drivee2e_data.scenario import (
     Scenario,
     SignalTimeline,
     SubScenario,
-    TimeOfDay,
     Track,
     Weather,
 )
@@ -32,9 +31,10 @@ from drivee2e_data.sources.synthetic.layout import Layout, generate_layout
 from drivee2e_data.sources.synthetic.paths import PathNetwork, build_network
 from drivee2e_data.sources.synthetic.signals import SignalPlan, make_plan
 from drivee2e_data.sources.synthetic.staging import StagedClip, StagingError, stage_clip
+from drivee2e_data.sun import time_of_day_of
 
 SOURCE_NAME = "synthetic"
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: the time-of-day label is the one the sun earns (drivee2e_data.sun)
 UTC_OFFSET_H = 8  # the synthetic sites sit near Beijing (UTC+8), like V2X-Seq's
 # Targets in the order clips take them: the eight categories come first, then the other six.
 TARGET_ORDER = (
@@ -121,7 +121,7 @@ def _conditions(rng: np.random.Generator, intersection_map: IntersectionMap) -> 
     day = datetime(2026, 4, 1, tzinfo=timezone.utc) + timedelta(days=int(rng.integers(0, 180)))
     start = day + timedelta(hours=local_hour - UTC_OFFSET_H)
     start = start.replace(microsecond=0)
-    return Conditions(weather, TimeOfDay.from_local_hour(local_hour), start)
+    return Conditions(weather, time_of_day_of(start, intersection_map.origin), start)
 
 
 def _scenario(
