@@ -151,7 +151,16 @@ def summarize(
     return summaries
 
 
-IMPORT_KINDS = ("drivee2e", "v2x-seq", "av2", "commonroad", "sind", "interaction", "lanelet2")
+IMPORT_KINDS = (
+    "drivee2e",
+    "v2x-seq",
+    "av2",
+    "commonroad",
+    "sind",
+    "interaction",
+    "lanelet2",
+    "scenarionet",
+)
 
 
 @dataclass(frozen=True)
@@ -175,6 +184,7 @@ def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario
         drivee2e_clip,
         interaction,
         lanelet2,
+        scenarionet,
         sind,
         v2x_seq,
     )
@@ -192,6 +202,12 @@ def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario
     if kind == "commonroad":
         files = [source] if source.is_file() else sorted(source.glob("*.xml"))
         results = [commonroad.import_commonroad(f) for f in files]
+        report = ImportReport()
+        for r in results:
+            _merge(report, r.report)
+        return [r.intersection_map for r in results], [r.scenario for r in results], report
+    if kind == "scenarionet":
+        results = [scenarionet.import_scenario(f) for f in scenarionet.scenario_files(source)]
         report = ImportReport()
         for r in results:
             _merge(report, r.report)

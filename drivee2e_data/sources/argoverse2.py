@@ -26,7 +26,6 @@ from drivee2e_data.errors import ScenarioFormatError
 from drivee2e_data.geometry import (
     centerline_between,
     rotation_from_quaternion,
-    wrap_angle,
     yaw_from_quaternion,
 )
 from drivee2e_data.hdmap import (
@@ -50,6 +49,7 @@ from drivee2e_data.sources.common import (
     grid_between,
     prune_lane_references,
     resample_track,
+    turn_direction_of,
     utc_from_ns,
     utm_transformer,
 )
@@ -176,19 +176,6 @@ def _points(value: Any, where: str) -> NDArray[np.float64]:
         ) from None
 
 
-def _turn(centerline: NDArray) -> TurnDirection:
-    start = centerline[min(2, len(centerline) - 1)] - centerline[0]
-    end = centerline[-1] - centerline[max(len(centerline) - 3, 0)]
-    change = float(wrap_angle(np.arctan2(end[1], end[0]) - np.arctan2(start[1], start[0])))
-    if abs(change) > np.deg2rad(150):
-        return TurnDirection.U_TURN
-    if change > np.deg2rad(30):
-        return TurnDirection.LEFT
-    if change < -np.deg2rad(30):
-        return TurnDirection.RIGHT
-    return TurnDirection.STRAIGHT
-
-
 def _ids(values: Any) -> tuple[str, ...]:
     return tuple(str(value) for value in (values or []))
 
@@ -229,7 +216,7 @@ def read_map(path: Path, frame: LocalFrame, map_id: str, report: ImportReport) -
                 left_mark=MARKS[segment["left_lane_mark_type"]],
                 right_mark=MARKS[segment["right_lane_mark_type"]],
                 lane_type=LaneType(segment["lane_type"].lower()),
-                turn_direction=_turn(centre) if is_intersection else TurnDirection.NONE,
+                turn_direction=turn_direction_of(centre) if is_intersection else TurnDirection.NONE,
                 is_intersection=is_intersection,
                 predecessors=_ids(segment.get("predecessors")),
                 successors=_ids(segment.get("successors")),

@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from pyproj import Transformer
 
 from drivee2e_data.errors import ScenarioFormatError
-from drivee2e_data.hdmap import GeoOrigin, Lane
+from drivee2e_data.geometry import wrap_angle
+from drivee2e_data.hdmap import GeoOrigin, Lane, TurnDirection
 from drivee2e_data.scenario import (
     FRAME_PERIOD_NS,
     TRACK_ARRAYS,
@@ -37,6 +38,7 @@ TYPICAL_SIZE_M = {
     AgentClass.TRICYCLIST: (2.8, 1.2, 1.8),
     AgentClass.MOTORCYCLIST: (2.1, 0.8, 1.6),
 }
+SUCCESSOR_GAP_M = 1.0  # a lane starting this close to where another ends follows it
 MAX_INTERPOLATION_GAP_NS = 300_000_000  # resampling bridges source gaps up to 0.3 s, no more
 
 
@@ -263,6 +265,48 @@ def prune_lane_references(lanes: Sequence[Lane], source: str, report: ImportRepo
     if dropped:
         report.warn(f"{source}: {dropped} lane references point outside the map crop; dropped")
     return pruned
+
+
+def turn_direction_of(centerline: NDArray[np.float64]) -> TurnDirection:
+    """Straight, left, right or U-turn from the heading change along a centerline `(N, 2+)`."""
+    start = centerline[min(2, len(centerline) - 1)] - centerline[0]
+    end = centerline[-1] - centerline[max(len(centerline) - 3, 0)]
+    change = float(wrap_angle(np.arctan2(end[1], end[0]) - np.arctan2(start[1], start[0])))
+    if abs(change) > np.deg2rad(150):
+        return TurnDirection.U_TURN
+    if change > np.deg2rad(30):
+        return TurnDirection.LEFT
+    if change < -np.deg2rad(30):
+        return TurnDirection.RIGHT
+    return TurnDirection.STRAIGHT
+
+
+def link_lanes_by_geometry(lanes: Sequence[Lane]) -> list[Lane]:
+    """Successors and predecessors from geometry, for maps that give none: a lane that starts
+    within 1 m of where another ends, heading within 60 degrees of its end, follows it."""
+    starts = np.array([lane.centerline_m[0, :2] for lane in lanes])
+    start_heading = np.array(
+        [np.arctan2(*(lane.centerline_m[1, :2] - lane.centerline_m[0, :2])[::-1]) for lane in lanes]
+    )
+    successors: dict[str, list[str]] = {lane.lane_id: [] for lane in lanes}
+    predecessors: dict[str, list[str]] = {lane.lane_id: [] for lane in lanes}
+    for lane in lanes:
+        end = lane.centerline_m[-1, :2]
+        heading = np.arctan2(*(lane.centerline_m[-1, :2] - lane.centerline_m[-2, :2])[::-1])
+        close = np.linalg.norm(starts - end, axis=1) < SUCCESSOR_GAP_M
+        aligned = np.abs(wrap_angle(start_heading - heading)) < np.deg2rad(60)
+        for k in np.flatnonzero(close & aligned):
+            if lanes[k].lane_id != lane.lane_id:
+                successors[lane.lane_id].append(lanes[k].lane_id)
+                predecessors[lanes[k].lane_id].append(lane.lane_id)
+    return [
+        replace(
+            lane,
+            successors=tuple(successors[lane.lane_id]),
+            predecessors=tuple(predecessors[lane.lane_id]),
+        )
+        for lane in lanes
+    ]
 
 
 # ---------------------------------------------------------------- reading tables

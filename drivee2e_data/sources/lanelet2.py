@@ -18,7 +18,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.errors import MapFormatError
-from drivee2e_data.geometry import centerline_between, wrap_angle
+from drivee2e_data.geometry import centerline_between
 from drivee2e_data.hdmap import (
     Area,
     Crosswalk,
@@ -33,7 +33,7 @@ from drivee2e_data.hdmap import (
     SignalHead,
     StopLine,
 )
-from drivee2e_data.sources.common import utm_transformer, utm_zone_of
+from drivee2e_data.sources.common import link_lanes_by_geometry, utm_transformer, utm_zone_of
 
 ROAD_SUBTYPES = {None, "road", "highway", "main_road", "bus_lane", "bicycle_lane", "play_street"}
 PATTERNS = {
@@ -43,7 +43,6 @@ PATTERNS = {
     "dashed_solid": MarkPattern.DASHED_SOLID,
     "solid_dashed": MarkPattern.SOLID_DASHED,
 }
-SUCCESSOR_GAP_M = 1.0  # a lanelet starting this close to where another ends follows it
 STOP_LINE_REACH_M = 3.0  # a lane ending this close to a stop line is the stop line's lane
 
 
@@ -145,33 +144,6 @@ def _bounds(osm: OsmData, path: Path, relation_id: str) -> tuple[NDArray, NDArra
     return left_line, right_line, left[0], right[0]
 
 
-def _topology(lanes: list[Lane]) -> list[Lane]:
-    """Successors and predecessors from geometry: a lane that starts where another ends."""
-    starts = np.array([lane.centerline_m[0, :2] for lane in lanes])
-    start_heading = np.array(
-        [np.arctan2(*(lane.centerline_m[1, :2] - lane.centerline_m[0, :2])[::-1]) for lane in lanes]
-    )
-    successors: dict[str, list[str]] = {lane.lane_id: [] for lane in lanes}
-    predecessors: dict[str, list[str]] = {lane.lane_id: [] for lane in lanes}
-    for lane in lanes:
-        end = lane.centerline_m[-1, :2]
-        heading = np.arctan2(*(lane.centerline_m[-1, :2] - lane.centerline_m[-2, :2])[::-1])
-        close = np.linalg.norm(starts - end, axis=1) < SUCCESSOR_GAP_M
-        aligned = np.abs(wrap_angle(start_heading - heading)) < np.deg2rad(60)
-        for k in np.flatnonzero(close & aligned):
-            if lanes[k].lane_id != lane.lane_id:
-                successors[lane.lane_id].append(lanes[k].lane_id)
-                predecessors[lanes[k].lane_id].append(lane.lane_id)
-    return [
-        replace(
-            lane,
-            successors=tuple(successors[lane.lane_id]),
-            predecessors=tuple(predecessors[lane.lane_id]),
-        )
-        for lane in lanes
-    ]
-
-
 def _zebra_crosswalks(osm: OsmData) -> list[Crosswalk]:
     """Crosswalks from pairs of zebra ways (SinD): ways with the same `direction` tag pair up,
     otherwise each pairs with its nearest unpaired neighbour."""
@@ -245,7 +217,7 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
                     signal_id=light_of_lane.get(lane_id),
                 )
             )
-    lanes = _topology(lanes)
+    lanes = link_lanes_by_geometry(lanes)
     if not crosswalks:
         crosswalks = _zebra_crosswalks(osm)
     stop_lines = []
