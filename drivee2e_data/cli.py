@@ -31,6 +31,7 @@ from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, LABEL_KINDS
 from drivee2e_data.sim.world import RENDERERS
+from drivee2e_data.sources.cutting import CUT_MODES
 
 PLANNERS = ("constant-velocity", "admlp", "camera")
 CLASS_ABBREVIATION = {
@@ -52,6 +53,16 @@ def _positive(text: str) -> int:
     return value
 
 
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return value
+
+
 def _label_kinds(text: str) -> tuple[str, ...]:
     kinds = tuple(k.strip() for k in text.split(",") if k.strip())
     unknown = [k for k in kinds if k not in LABEL_KINDS]
@@ -60,6 +71,22 @@ def _label_kinds(text: str) -> tuple[str, ...]:
             f"{text!r}: expected some of {','.join(LABEL_KINDS)}, comma-separated"
         )
     return kinds
+
+
+def _add_cut_arguments(command: argparse.ArgumentParser) -> None:
+    command.add_argument(
+        "--cut",
+        choices=CUT_MODES,
+        default="ego",
+        help="how recordings longer than 1.5 clips are cut: a clip per vehicle passing through "
+        "the junction (ego, default) or fixed windows",
+    )
+    command.add_argument(
+        "--clip-seconds",
+        type=_positive_float,
+        default=20.0,
+        help="window length for --cut windows (default 20)",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,17 +110,20 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument(
         "--workers", type=_positive, default=1, help="processes generating clips (default 1)"
     )
+    synth.add_argument(
+        "--recording-seconds",
+        type=_positive_float,
+        default=None,
+        help="instead of staged clips: one intersection's traffic this long, no staged ego, "
+        "cut into clips as an import would cut it (see --cut)",
+    )
+    _add_cut_arguments(synth)
 
     importer = commands.add_parser("import", help="import real traffic and maps")
     importer.add_argument("kind", choices=pipeline.IMPORT_KINDS, help="source format")
     importer.add_argument("source", type=Path, help="file or folder to import")
     importer.add_argument("--out", type=Path, required=True, help="data root to write into")
-    importer.add_argument(
-        "--clip-seconds",
-        type=float,
-        default=20.0,
-        help="cut longer recordings into clips this long",
-    )
+    _add_cut_arguments(importer)
 
     view = commands.add_parser("view", help="contact sheet of one frame: six views and a top view")
     view.add_argument("data", type=Path, help="data root")
@@ -474,6 +504,16 @@ def _logs(args: argparse.Namespace) -> int:
 
 
 def _synth(args: argparse.Namespace) -> int:
+    if args.recording_seconds is not None:
+        print(f"simulating {args.recording_seconds:g} s of traffic ...", file=sys.stderr)
+        written, cut = pipeline.synthesize_recording(
+            args.out, args.seed, args.recording_seconds, args.clip_seconds, args.cut
+        )
+        with_ego = sum(store.read_scenario(args.out, i).ego_id is not None for i in written)
+        print(f"{len(written)} clips ({with_ego} with an ego) written under {args.out}")
+        if cut is not None:
+            print("\n".join(cut.lines()))
+        return 0
     with tqdm(total=args.clips, unit="clip", desc="synthesising", disable=None) as bar:
         report = pipeline.synthesize(
             args.out,
@@ -493,11 +533,19 @@ def _synth(args: argparse.Namespace) -> int:
 def _import(args: argparse.Namespace) -> int:
     with tqdm(unit="clip", desc=f"importing {args.kind}", disable=None) as bar:
         summary = pipeline.import_source(
-            args.out, args.kind, args.source, args.clip_seconds, on_scenario=lambda _: bar.update(1)
+            args.out,
+            args.kind,
+            args.source,
+            args.clip_seconds,
+            on_scenario=lambda _: bar.update(1),
+            cut=args.cut,
         )
     print(
         f"{len(summary.scenarios)} scenarios and {len(summary.maps)} maps written under {args.out}"
     )
+    for recording, cut in summary.cuts.items():
+        print(f"{recording} cut into clips:")
+        print("\n".join(cut.lines()))
     lines = summary.report.lines()
     if lines:
         print("per source class:")

@@ -21,7 +21,8 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, BehaviorCategory, BehaviorLabel, Scenario
 from drivee2e_data.sources import synthetic
-from drivee2e_data.sources.common import ImportReport, cut_clips
+from drivee2e_data.sources.common import ImportReport
+from drivee2e_data.sources.cutting import CUT_MODES, CutReport, cut_clips, cut_ego_clips
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,7 @@ class ImportSummary:
     maps: list[str]
     scenarios: list[str]
     report: ImportReport
+    cuts: dict[str, CutReport] = dataclasses.field(default_factory=dict)  # recording -> its cut
 
 
 def _one(paths: list[Path], what: str, where: Path) -> Path:
@@ -201,24 +203,20 @@ def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario
         return [result.intersection_map], [result.scenario], result.report
     if kind == "commonroad":
         files = [source] if source.is_file() else sorted(source.glob("*.xml"))
-        results = [commonroad.import_commonroad(f) for f in files]
-        report = ImportReport()
-        for r in results:
-            _merge(report, r.report)
-        return [r.intersection_map for r in results], [r.scenario for r in results], report
+        return _combined([commonroad.import_commonroad(f) for f in files])
     if kind == "scenarionet":
-        results = [scenarionet.import_scenario(f) for f in scenarionet.scenario_files(source)]
-        report = ImportReport()
-        for r in results:
-            _merge(report, r.report)
-        return [r.intersection_map for r in results], [r.scenario for r in results], report
+        files = scenarionet.scenario_files(source)
+        return _combined([scenarionet.import_scenario(f) for f in files])
     if kind == "sind":
         result = sind.import_sind(source)
         return [result.intersection_map], [result.recording], result.report
     if kind == "interaction":
-        osm = _one(sorted(source.glob("*.osm")), "Lanelet2 map (*.osm)", source)
-        result = interaction.import_interaction(sorted(source.glob("*.csv")), osm)
-        return [result.intersection_map], [result.scenario], result.report
+        return _combined(
+            [
+                interaction.import_interaction(csvs, osm, name)
+                for name, csvs, osm in interaction.recordings(source)
+            ]
+        )
     hdmap = _one(sorted(source.rglob("hdmap*.json")), "hdmap*.json map", source)
     report, maps, scenarios = ImportReport(), {}, []
     if kind == "v2x-seq":
@@ -246,6 +244,15 @@ def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario
     return list(maps.values()), scenarios, report
 
 
+def _combined(results: list) -> tuple[list[IntersectionMap], list[Scenario], ImportReport]:
+    """Maps (each once), scenarios and one merged report from several imports."""
+    report = ImportReport()
+    for result in results:
+        _merge(report, result.report)
+    maps = {r.intersection_map.map_id: r.intersection_map for r in results}
+    return list(maps.values()), [r.scenario for r in results], report
+
+
 def _merge(into: ImportReport, other: ImportReport) -> None:
     into.kept.update(other.kept)
     into.static.update(other.static)
@@ -255,31 +262,67 @@ def _merge(into: ImportReport, other: ImportReport) -> None:
     into.warnings.extend(other.warnings)
 
 
+def split_recording(
+    scenario: Scenario, intersection_map: IntersectionMap, clip_s: float, cut: str = "ego"
+) -> tuple[list[Scenario], CutReport | None]:
+    """A scenario longer than 1.5 clips cut into clips, ego-first (`cut="ego"`, falling back to
+    fixed windows where no vehicle passes through a junction) or in fixed `clip_s` windows; a
+    shorter one as it is (report None)."""
+    if cut not in CUT_MODES:
+        raise DriveE2EError(f"unknown cut {cut!r}; expected one of {', '.join(CUT_MODES)}")
+    if scenario.duration_s <= 1.5 * clip_s:
+        return [scenario], None
+    if cut == "ego":
+        clips, report = cut_ego_clips(scenario, intersection_map)
+        if clips:
+            return clips, report
+        report.fallback = report.fallback or "no vehicle passes through the junction"
+    else:
+        report = CutReport(fallback="asked for (--cut windows)")
+    candidates = [t.track_id for t in scenario.tracks if t.agent_class.is_motor_vehicle]
+    return cut_clips(scenario, clip_s, candidates), report
+
+
 def import_source(
     root: Path,
     kind: str,
     source: Path,
     clip_s: float = 20.0,
     on_scenario: Callable[[str], None] | None = None,
+    cut: str = "ego",
 ) -> ImportSummary:
     """Import real data of `kind` from `source` into `root`; recordings longer than 1.5 clips
-    are cut into clips of `clip_s` seconds whose ego is a vehicle valid throughout."""
+    are cut into clips (`split_recording`)."""
     maps, scenarios, report = _load(kind, Path(source))
-    written = []
+    written, cuts = [], {}
+    by_id = {m.map_id: m for m in maps}
     for intersection_map in maps:
         store.write_map(root, intersection_map)
     for scenario in scenarios:
-        if scenario.duration_s > 1.5 * clip_s:
-            candidates = [t.track_id for t in scenario.tracks if t.agent_class.is_motor_vehicle]
-            pieces = cut_clips(scenario, clip_s, candidates)
-        else:
-            pieces = [scenario]
+        pieces, cut_report = split_recording(scenario, by_id[scenario.map_id], clip_s, cut)
+        if cut_report is not None:
+            cuts[scenario.scenario_id] = cut_report
         for piece in pieces:
             store.write_scenario(root, piece)
             written.append(piece.scenario_id)
             if on_scenario is not None:
                 on_scenario(piece.scenario_id)
-    return ImportSummary([m.map_id for m in maps], written, report)
+    return ImportSummary([m.map_id for m in maps], written, report, cuts)
+
+
+def synthesize_recording(
+    root: Path, seed: int, seconds: float, clip_s: float = 20.0, cut: str = "ego"
+) -> tuple[list[str], CutReport | None]:
+    """One intersection's traffic for `seconds` with no staged ego, cut as an import would cut
+    it; the map and the clips are written under `root`. Returns the clip ids and the cut report."""
+    from drivee2e_data.sources.synthetic.recording import generate_recording
+
+    site, recording = generate_recording(seed, 0, seconds)
+    pieces, report = split_recording(recording, site.intersection_map, clip_s, cut)
+    store.write_map(root, site.intersection_map)
+    for piece in pieces:
+        store.write_scenario(root, piece)
+    return [piece.scenario_id for piece in pieces], report
 
 
 @dataclass(frozen=True)
@@ -315,13 +358,23 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
             "none: no vehicle valid in every frame on the map's lanes",
             None,
         )
-        if scenario.ego_id in kept_ids and repaired.track(scenario.ego_id).valid.all():
+        source_ego = scenario.ego_id in kept_ids and repaired.track(scenario.ego_id).valid.all()
+        # a source ego that stands still shows no behaviour (a parked recording car): another
+        # is chosen where one moves, unless the source labelled the clip itself
+        still = (
+            source_ego
+            and (scenario.behavior is None or scenario.behavior.source == "labelled")
+            and not ego.moves(repaired.track(scenario.ego_id))
+        )
+        choice = None
+        if not source_ego or still:
+            choice = ego.choose_ego(repaired, intersection_map, counts, behavior.label)
+        if choice is not None:
+            (ego_id, label) = choice
+            source = "chosen (the source's ego stands still)" if still else "chosen"
+        elif source_ego:
             ego_id, source = scenario.ego_id, "kept from the source"
             label = behavior.label(repaired, intersection_map, ego_id)
-        else:
-            choice = ego.choose_ego(repaired, intersection_map, counts, behavior.label)
-            if choice is not None:
-                (ego_id, label), source = choice, "chosen"
         metadata = dict(scenario.metadata)
         if scenario.behavior is not None and scenario.behavior.source != "labelled":
             metadata[f"{scenario.behavior.source}_behavior"] = scenario.behavior.sub_scenario.value

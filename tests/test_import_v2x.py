@@ -279,16 +279,15 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(
     assert not out.exists()
 
 
-def test_interaction_tracks_and_map(tmp_path: Path):
-    from drivee2e_data.sources import interaction
-
-    osm = tmp_path / "DR_TEST.osm"
+def write_interaction_map(osm: Path) -> None:
+    """One 55.7 m lanelet on the equator with a dashed left bound and a kerb on the right."""
     nodes = "".join(
         f"<node id='{i}' lat='{lat}' lon='{lon}'/>"
         for i, (lat, lon) in enumerate(
             [(0.0, 0.0), (0.0, 0.0005), (0.00003, 0.0), (0.00003, 0.0005)], 1
         )
     )
+    osm.parent.mkdir(parents=True, exist_ok=True)
     osm.write_text(
         f"<osm>{nodes}<way id='10'><nd ref='3'/><nd ref='4'/><tag k='type' v='line_thin'/>"
         "<tag k='subtype' v='dashed'/></way><way id='11'><nd ref='1'/><nd ref='2'/>"
@@ -296,6 +295,10 @@ def test_interaction_tracks_and_map(tmp_path: Path):
         "<member type='way' ref='11' role='right'/><tag k='type' v='lanelet'/>"
         "<tag k='subtype' v='road'/></relation></osm>"
     )
+
+
+def write_interaction_tracks(folder: Path, number: str = "000") -> list[Path]:
+    """A car and a pedestrian over 2 s, as INTERACTION's vehicle and pedestrian files."""
     vehicles = [
         {
             "track_id": "1",
@@ -325,11 +328,19 @@ def test_interaction_tracks_and_map(tmp_path: Path):
         }
         for k in range(1, 21)
     ]
-    write_csv(tmp_path / "vehicle_tracks_000.csv", vehicles)
-    write_csv(tmp_path / "pedestrian_tracks_000.csv", walkers)
-    result = interaction.import_interaction(
-        [tmp_path / "vehicle_tracks_000.csv", tmp_path / "pedestrian_tracks_000.csv"], osm
-    )
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"vehicle_tracks_{number}.csv", folder / f"pedestrian_tracks_{number}.csv"]
+    write_csv(paths[0], vehicles)
+    write_csv(paths[1], walkers)
+    return paths
+
+
+def test_interaction_tracks_and_map(tmp_path: Path):
+    from drivee2e_data.sources import interaction
+
+    osm = tmp_path / "DR_TEST.osm"
+    write_interaction_map(osm)
+    result = interaction.import_interaction(write_interaction_tracks(tmp_path), osm)
     classes = sorted(t.agent_class.value for t in result.scenario.tracks)
     assert classes == ["car", "pedestrian"]
     lane = result.intersection_map.lanes[0]
@@ -340,6 +351,23 @@ def test_interaction_tracks_and_map(tmp_path: Path):
     assert width == pytest.approx(3.32, abs=0.02)
     assert lane.left_mark.pattern.value == "dashed" and len(result.intersection_map.kerbs) == 1
     assert_sun_matches_label(result.scenario.conditions, result.intersection_map.origin)
+
+
+def test_interaction_release_layout_from_its_root_or_one_recording(tmp_path: Path):
+    release = tmp_path / "INTERACTION-Dataset-DR-v1_1"
+    write_interaction_map(release / "maps" / "DR_TEST.osm")
+    recording = release / "recorded_trackfiles" / "DR_TEST"
+    write_interaction_tracks(recording, "000")
+    write_interaction_tracks(recording, "001")
+    out = tmp_path / "data"
+    assert main(["import", "interaction", str(release), "--out", str(out)]) == 0
+    assert store.scenario_ids(out) == ["interaction_DR_TEST_000", "interaction_DR_TEST_001"]
+    assert store.map_ids(out) == ["interaction_DR_TEST"]
+    one = tmp_path / "one"
+    assert main(["import", "interaction", str(recording), "--out", str(one)]) == 0
+    assert store.scenario_ids(one) == store.scenario_ids(out)
+    (release / "maps" / "DR_TEST.osm").unlink()
+    assert main(["import", "interaction", str(release), "--out", str(tmp_path / "x")]) == 2
 
 
 def test_a_cropped_map_drops_references_outside_it_with_one_warning(

@@ -23,13 +23,20 @@ LANE_REACH_M = 2.5  # ...and always drives this close to some lane centre line
 MIN_TRAVEL_M = 5.0  # a vehicle that moves less than this over the clip shows no behaviour
 
 
+def moves(track: Track) -> bool:
+    """Whether a track travels at least `MIN_TRAVEL_M` over its valid frames."""
+    xy = track.xy_m[track.valid]
+    return bool(
+        len(xy)
+        and (
+            np.linalg.norm(xy[-1] - xy[0]) >= MIN_TRAVEL_M
+            or np.ptp(xy, axis=0).max() >= MIN_TRAVEL_M
+        )
+    )
+
+
 def is_candidate(track: Track, intersection_map: IntersectionMap) -> bool:
-    if not track.agent_class.is_motor_vehicle or not track.valid.all():
-        return False
-    if (
-        np.linalg.norm(track.xy_m[-1] - track.xy_m[0]) < MIN_TRAVEL_M
-        and np.ptp(track.xy_m, axis=0).max() < MIN_TRAVEL_M
-    ):
+    if not track.agent_class.is_motor_vehicle or not track.valid.all() or not moves(track):
         return False
     points = shapely.points(track.x_m, track.y_m)
     road = intersection_map.drivable_union()

@@ -21,9 +21,7 @@ from drivee2e_data.geometry import wrap_angle
 from drivee2e_data.hdmap import GeoOrigin, Lane, TurnDirection
 from drivee2e_data.scenario import (
     FRAME_PERIOD_NS,
-    TRACK_ARRAYS,
     AgentClass,
-    Scenario,
     Track,
 )
 
@@ -166,46 +164,6 @@ def grid_between(first_ns: int, last_ns: int) -> NDArray[np.int64]:
     """10 Hz times from `first_ns` up to `last_ns`."""
     count = (last_ns - first_ns) // FRAME_PERIOD_NS + 1
     return first_ns + FRAME_PERIOD_NS * np.arange(count, dtype=np.int64)
-
-
-def cut_clips(
-    scenario: Scenario, clip_s: float, ego_candidates: Sequence[str] = ()
-) -> list[Scenario]:
-    """Cut a long recording into consecutive clips of `clip_s` seconds (the last may be shorter
-    but at least half as long). A clip keeps the tracks valid in it; when `ego_candidates` are
-    given, each clip's ego is the first candidate valid in every frame of it, if any."""
-    frames = round(clip_s * 1e9 / FRAME_PERIOD_NS)
-    clips = []
-    for index, start in enumerate(range(0, scenario.num_frames, frames)):
-        stop = min(start + frames, scenario.num_frames)
-        if stop - start < max(2, frames // 2):
-            break
-        window = slice(start, stop)
-        tracks = [_slice_track(t, window) for t in scenario.tracks if t.valid[window].any()]
-        ego = next(
-            (c for c in ego_candidates for t in tracks if t.track_id == c and t.valid.all()), None
-        )
-        clips.append(
-            Scenario(
-                scenario_id=f"{scenario.scenario_id}_{index:03d}",
-                map_id=scenario.map_id,
-                source=scenario.source,
-                t_ns=scenario.t_ns[window],
-                tracks=tuple(tracks),
-                signals=tuple(
-                    type(s)(s.signal_id, s.states[window], s.origin) for s in scenario.signals
-                ),
-                conditions=scenario.conditions,
-                ego_id=ego,
-                metadata={**scenario.metadata, "clip_index": index, "clip_first_frame": start},
-            )
-        )
-    return clips
-
-
-def _slice_track(track: Track, window: slice) -> Track:
-    arrays = {name: getattr(track, name)[window] for name in (*TRACK_ARRAYS, "valid")}
-    return replace(track, **arrays)
 
 
 # ---------------------------------------------------------------- geodesy

@@ -7,6 +7,7 @@ than 3 m/s at any time is taken for a cyclist. Maps use the origin (0, 0) (see `
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +34,54 @@ WALKING_LIMIT_MPS = 3.0
 COLUMNS = ["track_id", "frame_id", "timestamp_ms", "agent_type", "x", "y", "vx", "vy"]
 
 
-def import_interaction(track_csvs: list[Path], osm_map: Path) -> Imported:
-    """Track CSVs of one recording (vehicles and pedestrians) with their Lanelet2 map."""
+def recordings(source: Path) -> list[tuple[str, list[Path], Path]]:
+    """(name, track CSVs, map) per recording under `source`: the release root (`maps/NAME.osm`
+    beside `recorded_trackfiles/NAME/*_tracks_NNN.csv`), one recording folder of it, or a flat
+    folder holding one map and its CSVs. Files ending `_NNN.csv` form recording `NAME_NNN`."""
+    source = Path(source)
+    if (source / "recorded_trackfiles").is_dir():
+        folders = sorted(p for p in (source / "recorded_trackfiles").iterdir() if p.is_dir())
+        maps = source / "maps"
+    elif source.parent.name == "recorded_trackfiles":
+        folders, maps = [source], source.parent.parent / "maps"
+    else:
+        osm = sorted(source.glob("*.osm"))
+        if len(osm) != 1:
+            raise ScenarioFormatError(
+                f"{source}: expected the INTERACTION release (maps/ and recorded_trackfiles/), "
+                f"one of its recording folders, or a folder with one Lanelet2 map; found "
+                f"{len(osm)} *.osm files"
+            )
+        return _grouped(source, osm[0].stem, osm[0])
+    found = []
+    for folder in folders:
+        osm = maps / f"{folder.name}.osm"
+        if not osm.is_file():
+            raise ScenarioFormatError(f"{folder}: its map {osm} is missing")
+        found += _grouped(folder, folder.name, osm)
+    if not found:
+        raise ScenarioFormatError(f"{source}: no track CSV in any recording folder")
+    return found
+
+
+def _grouped(folder: Path, name: str, osm: Path) -> list[tuple[str, list[Path], Path]]:
+    groups: dict[str, list[Path]] = {}
+    for path in sorted(folder.glob("*.csv")):
+        match = re.search(r"_(\d+)$", path.stem)
+        groups.setdefault(match.group(1) if match else "", []).append(path)
+    if not groups:
+        raise ScenarioFormatError(f"{folder}: no track CSV")
+    return [
+        (f"{name}_{number}" if number else name, files, osm)
+        for number, files in sorted(groups.items())
+    ]
+
+
+def import_interaction(
+    track_csvs: list[Path], osm_map: Path, recording: str | None = None
+) -> Imported:
+    """Track CSVs of one recording (vehicles and pedestrians) with their Lanelet2 map; the
+    scenario is `interaction_<recording>` (default: the map's name)."""
     report = ImportReport()
     map_id = f"interaction_{Path(osm_map).stem}"
     intersection_map = lanelet2.read_map(Path(osm_map), map_id, origin=(0.0, 0.0))
@@ -105,7 +152,7 @@ def import_interaction(track_csvs: list[Path], osm_map: Path) -> Imported:
             tracks.append(track)
             report.keep(kind, agent_class)
     scenario = Scenario(
-        scenario_id=f"interaction_{Path(track_csvs[0]).stem}",
+        scenario_id=f"interaction_{recording or Path(osm_map).stem}",
         map_id=map_id,
         source=SOURCE,
         t_ns=grid,

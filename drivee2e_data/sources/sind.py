@@ -32,13 +32,13 @@ from drivee2e_data.sources import lanelet2
 from drivee2e_data.sources.common import (
     TYPICAL_SIZE_M,
     ImportReport,
-    cut_clips,
     grid_between,
     heading_from_velocity,
     number,
     read_csv_rows,
     resample_track,
 )
+from drivee2e_data.sources.cutting import cut_clips
 from drivee2e_data.sun import start_time_for
 
 SOURCE = "sind"

@@ -31,6 +31,7 @@ from drivee2e_data.sources.synthetic.layout import Layout, generate_layout
 from drivee2e_data.sources.synthetic.paths import PathNetwork, build_network
 from drivee2e_data.sources.synthetic.signals import SignalPlan, make_plan
 from drivee2e_data.sources.synthetic.staging import StagedClip, StagingError, stage_clip
+from drivee2e_data.sources.synthetic.traffic import PedestrianSpec, SimResult, VehicleSpec
 from drivee2e_data.sun import time_of_day_of
 
 SOURCE_NAME = "synthetic"
@@ -97,7 +98,7 @@ def generate_clip(site: Site, seed: int, clip_index: int) -> Scenario:
             continue
     else:
         raise StagingError(f"could not stage any target on {site.intersection_map.map_id}")
-    conditions = _conditions(rng, site.intersection_map)
+    conditions = random_conditions(rng, site.intersection_map)
     return _scenario(clip_id(seed, clip_index), site, staged, conditions, seed)
 
 
@@ -115,7 +116,7 @@ def generate(
         yield site.intersection_map, generate_clip(site, seed, clip_index)
 
 
-def _conditions(rng: np.random.Generator, intersection_map: IntersectionMap) -> Conditions:
+def random_conditions(rng: np.random.Generator, intersection_map: IntersectionMap) -> Conditions:
     weather = list(Weather)[int(rng.integers(len(Weather)))]
     local_hour = float(rng.choice([6.0, 9.0, 12.5, 15.5, 18.3, 21.5]) + rng.uniform(-0.8, 0.8))
     day = datetime(2026, 4, 1, tzinfo=timezone.utc) + timedelta(days=int(rng.integers(0, 180)))
@@ -124,21 +125,23 @@ def _conditions(rng: np.random.Generator, intersection_map: IntersectionMap) -> 
     return Conditions(weather, time_of_day_of(start, intersection_map.origin), start)
 
 
-def _scenario(
-    scenario_id: str, site: Site, staged: StagedClip, conditions: Conditions, seed: int
-) -> Scenario:
-    result = staged.result
-    window = slice(staged.first_step, staged.last_step + 1)
-    frames = staged.last_step - staged.first_step + 1
-    t0_ns = int(conditions.start_time_utc.timestamp()) * 1_000_000_000
-    vehicle_count = len(staged.vehicles)
-    names = _track_names(staged, window)
+def simulated_tracks(
+    site: Site,
+    result: SimResult,
+    vehicles: list[VehicleSpec],
+    pedestrians: list[PedestrianSpec],
+    window: slice,
+) -> tuple[tuple[Track, ...], tuple[SignalTimeline, ...]]:
+    """The agents seen in `window` of a simulation as tracks (ids by order of appearance), and
+    the signal timelines over it."""
+    vehicle_count = len(vehicles)
+    names = _track_names(result, vehicle_count, window)
     tracks = []
     for row in sorted(names, key=lambda r: names[r]):
         agent_id = names[row]
         valid = result.valid[row, window]
         if row < vehicle_count:
-            spec = staged.vehicles[row]
+            spec = vehicles[row]
             agent_class, size = spec.agent_class, (spec.length_m, spec.width_m, spec.height_m)
             path = site.network.paths[spec.movement_id]
             metadata = {
@@ -148,7 +151,7 @@ def _scenario(
                 "runs_yellow": str(spec.runs_yellow).lower(),
             }
         else:
-            pedestrian = staged.pedestrians[row - vehicle_count]
+            pedestrian = pedestrians[row - vehicle_count]
             agent_class, size = AgentClass.PEDESTRIAN, pedestrian.size_m
             metadata = {
                 "jaywalks": str(pedestrian.jaywalks).lower(),
@@ -177,6 +180,18 @@ def _scenario(
         SignalTimeline(signal_id, states[window], origin="synthetic")
         for signal_id, states in result.signal_states.items()
     )
+    return tuple(tracks), signals
+
+
+def _scenario(
+    scenario_id: str, site: Site, staged: StagedClip, conditions: Conditions, seed: int
+) -> Scenario:
+    result = staged.result
+    window = slice(staged.first_step, staged.last_step + 1)
+    frames = staged.last_step - staged.first_step + 1
+    t0_ns = int(conditions.start_time_utc.timestamp()) * 1_000_000_000
+    tracks, signals = simulated_tracks(site, result, staged.vehicles, staged.pedestrians, window)
+    names = _track_names(result, len(staged.vehicles), window)
     ego_id = names[staged.ego_row]
     ego_path = site.network.paths[staged.vehicles[staged.ego_row].movement_id]
     ego_xy = np.stack([result.x_m[staged.ego_row, window], result.y_m[staged.ego_row, window]], -1)
@@ -203,13 +218,12 @@ def _scenario(
     )
 
 
-def _track_names(staged: StagedClip, window: slice) -> dict[int, str]:
+def _track_names(result: SimResult, vehicle_count: int, window: slice) -> dict[int, str]:
     """Track ids for the sim rows seen in the clip: 'v0000'.. and 'p0000'.. in order of appearance,
     so nothing in an id tells which vehicle is the ego."""
-    valid = staged.result.valid[:, window]
+    valid = result.valid[:, window]
     seen = [row for row in range(valid.shape[0]) if valid[row].any()]
-    order = sorted(seen, key=lambda row: (int(np.argmax(valid[row])), staged.result.agent_ids[row]))
-    vehicle_count = len(staged.vehicles)
+    order = sorted(seen, key=lambda row: (int(np.argmax(valid[row])), result.agent_ids[row]))
     names: dict[int, str] = {}
     for row in order:
         prefix = "v" if row < vehicle_count else "p"

@@ -420,7 +420,12 @@ class TrafficSimulation:
                 continue  # too far away to matter yet
             if self._will_stop_for_signal(j, front_j, states, yellow_go):
                 continue  # held at its stop line: it contests nothing until its light changes
-            if self._committed(j, front_j, v[j], zone.other_start_m):
+            # j holds the zone when inside it, or moving too fast to stop before it; a vehicle
+            # standing at its edge holds nothing (such vehicles waiting on one another in a
+            # ring would otherwise lock the junction for good)
+            inside = front_j > zone.other_start_m
+            moving = v[j] >= HELD_MPS and self._committed(j, front_j, v[j], zone.other_start_m)
+            if inside or moving:
                 contenders.append((j, True, 0.0))
             elif v[j] < HELD_MPS and self.held[j]:
                 continue  # standing in a queue or giving way itself: not coming yet
