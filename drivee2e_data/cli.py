@@ -552,6 +552,11 @@ def _import(args: argparse.Namespace) -> int:
         print("\n".join(lines))
     for warning in summary.report.warnings:
         print(f"warning: {warning}", file=sys.stderr)
+    if summary.failures:
+        print(f"{len(summary.failures)} failed (nothing of them written):", file=sys.stderr)
+        for name, error in summary.failures.items():
+            print(f"  {name}: {error}", file=sys.stderr)
+        return 1
     return 0
 
 

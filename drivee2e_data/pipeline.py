@@ -12,6 +12,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -170,6 +171,7 @@ class ImportSummary:
     scenarios: list[str]
     report: ImportReport
     cuts: dict[str, CutReport] = dataclasses.field(default_factory=dict)  # recording -> its cut
+    failures: dict[str, str] = dataclasses.field(default_factory=dict)  # source file -> error
 
 
 def _one(paths: list[Path], what: str, where: Path) -> Path:
@@ -178,8 +180,12 @@ def _one(paths: list[Path], what: str, where: Path) -> Path:
     return paths[0]
 
 
-def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario], ImportReport]:
-    """Parse everything in memory first, so bad input writes nothing."""
+ImportJob = Callable[[], tuple[IntersectionMap, Scenario | None, ImportReport]]
+
+
+def _jobs(kind: str, source: Path) -> list[tuple[str, ImportJob]]:
+    """One job per clip (or recording) the source holds, named after its file: each parses in
+    memory and fails on its own."""
     from drivee2e_data.sources import (
         argoverse2,
         commonroad,
@@ -194,63 +200,97 @@ def _load(kind: str, source: Path) -> tuple[list[IntersectionMap], list[Scenario
     if not source.exists():
         raise DriveE2EError(f"{source}: no such file or folder")
     if kind == "lanelet2":
-        return [lanelet2.read_map(source, f"lanelet2_{source.stem}")], [], ImportReport()
+        return [
+            (
+                str(source),
+                lambda: (
+                    lanelet2.read_map(source, f"lanelet2_{source.stem}"),
+                    None,
+                    ImportReport(),
+                ),
+            )
+        ]
     if kind == "av2":
         if (source / "annotations.feather").exists():
-            result = argoverse2.import_sensor_log(source)
-        else:
-            result = argoverse2.import_forecasting(source)
-        return [result.intersection_map], [result.scenario], result.report
+            return [(str(source), partial(_call, argoverse2.import_sensor_log, source))]
+        return [(str(source), partial(_call, argoverse2.import_forecasting, source))]
+    if kind == "sind":
+
+        def sind_job():
+            result = sind.import_sind(source)
+            return result.intersection_map, result.recording, result.report
+
+        return [(str(source), sind_job)]
     if kind == "commonroad":
         files = [source] if source.is_file() else sorted(source.glob("*.xml"))
-        return _combined([commonroad.import_commonroad(f) for f in files])
+        return [(str(f), partial(_call, commonroad.import_commonroad, f)) for f in files]
     if kind == "scenarionet":
         files = scenarionet.scenario_files(source)
-        return _combined([scenarionet.import_scenario(f) for f in files])
-    if kind == "sind":
-        result = sind.import_sind(source)
-        return [result.intersection_map], [result.recording], result.report
+        return [(str(f), partial(_call, scenarionet.import_scenario, f)) for f in files]
     if kind == "interaction":
-        return _combined(
-            [
-                interaction.import_interaction(csvs, osm, name)
-                for name, csvs, osm in interaction.recordings(source)
-            ]
-        )
-    hdmap = _one(sorted(source.rglob("hdmap*.json")), "hdmap*.json map", source)
-    report, maps, scenarios = ImportReport(), {}, []
-    if kind == "v2x-seq":
-        folder = source / "trajectories" if (source / "trajectories").is_dir() else source
-        for csv_path in sorted(folder.glob("*.csv")):
-            lights = source / "traffic_light" / csv_path.name
-            result = v2x_seq.import_v2x_seq(csv_path, lights if lights.is_file() else None, hdmap)
-            maps[result.intersection_map.map_id] = result.intersection_map
-            scenarios.append(result.scenario)
-            _merge(report, result.report)
-    elif kind == "drivee2e":
-        for route in sorted(source.rglob("*.xml")):
-            csv_id = str(drivee2e_clip.read_route(route)["scenario_csv_id"])
-            clip = _one(sorted(source.rglob(f"{csv_id}.csv")), f"clip CSV {csv_id}.csv", source)
-            result = drivee2e_clip.import_clip(clip, route, hdmap)
-            maps[result.intersection_map.map_id] = result.intersection_map
-            scenarios.append(result.scenario)
-            _merge(report, result.report)
-    else:
+        return [
+            (
+                str(csvs[0].parent / name),
+                partial(_call, interaction.import_interaction, csvs, osm, name),
+            )
+            for name, csvs, osm in interaction.recordings(source)
+        ]
+    if kind not in ("v2x-seq", "drivee2e"):
         raise DriveE2EError(
             f"unknown import kind {kind!r}; expected one of {', '.join(IMPORT_KINDS)}"
         )
-    if not scenarios:
+    hdmap = _one(sorted(source.rglob("hdmap*.json")), "hdmap*.json map", source)
+    if kind == "v2x-seq":
+        folder = source / "trajectories" if (source / "trajectories").is_dir() else source
+        jobs = []
+        for csv_path in sorted(folder.glob("*.csv")):
+            lights = source / "traffic_light" / csv_path.name
+            lights_file = lights if lights.is_file() else None
+            job = partial(_call, v2x_seq.import_v2x_seq, csv_path, lights_file, hdmap)
+            jobs.append((str(csv_path), job))
+        return jobs
+
+    def clip_job(route: Path):
+        csv_id = str(drivee2e_clip.read_route(route)["scenario_csv_id"])
+        clip = _one(sorted(source.rglob(f"{csv_id}.csv")), f"clip CSV {csv_id}.csv", source)
+        return _call(drivee2e_clip.import_clip, clip, route, hdmap)
+
+    return [(str(route), partial(clip_job, route)) for route in sorted(source.rglob("*.xml"))]
+
+
+def _call(function: Callable, *arguments) -> tuple[IntersectionMap, Scenario | None, ImportReport]:
+    result = function(*arguments)
+    return result.intersection_map, result.scenario, result.report
+
+
+def _load(
+    kind: str, source: Path
+) -> tuple[list[IntersectionMap], list[Scenario], ImportReport, dict[str, str]]:
+    """Every job parsed in memory, so bad input writes nothing: maps, scenarios, the merged
+    report, and the failures (source -> error) of a folder's clips that failed on their own. A
+    source of one clip, or a folder whose every clip failed, raises its (first) error."""
+    jobs = _jobs(kind, source)
+    if not jobs:
         raise DriveE2EError(f"{source}: nothing to import for {kind}")
-    return list(maps.values()), scenarios, report
-
-
-def _combined(results: list) -> tuple[list[IntersectionMap], list[Scenario], ImportReport]:
-    """Maps (each once), scenarios and one merged report from several imports."""
-    report = ImportReport()
-    for result in results:
-        _merge(report, result.report)
-    maps = {r.intersection_map.map_id: r.intersection_map for r in results}
-    return list(maps.values()), [r.scenario for r in results], report
+    maps: dict[str, IntersectionMap] = {}
+    scenarios: list[Scenario] = []
+    report, failures = ImportReport(), {}
+    for name, job in jobs:
+        try:
+            intersection_map, scenario, job_report = job()
+        except DriveE2EError as error:
+            if len(jobs) == 1:
+                raise
+            failures[name] = str(error)
+            continue
+        maps[intersection_map.map_id] = intersection_map
+        if scenario is not None:
+            scenarios.append(scenario)
+        _merge(report, job_report)
+    if len(failures) == len(jobs):
+        first = next(iter(failures.values()))
+        raise DriveE2EError(f"all {len(jobs)} clips failed to import; the first: {first}")
+    return list(maps.values()), scenarios, report, failures
 
 
 def _merge(into: ImportReport, other: ImportReport) -> None:
@@ -293,7 +333,7 @@ def import_source(
 ) -> ImportSummary:
     """Import real data of `kind` from `source` into `root`; recordings longer than 1.5 clips
     are cut into clips (`split_recording`)."""
-    maps, scenarios, report = _load(kind, Path(source))
+    maps, scenarios, report, failures = _load(kind, Path(source))
     written, cuts = [], {}
     by_id = {m.map_id: m for m in maps}
     for intersection_map in maps:
@@ -307,7 +347,7 @@ def import_source(
             written.append(piece.scenario_id)
             if on_scenario is not None:
                 on_scenario(piece.scenario_id)
-    return ImportSummary([m.map_id for m in maps], written, report, cuts)
+    return ImportSummary([m.map_id for m in maps], written, report, cuts, failures)
 
 
 def synthesize_recording(

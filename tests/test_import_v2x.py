@@ -10,7 +10,7 @@ import pytest
 
 from drivee2e_data import pipeline, store
 from drivee2e_data.cli import main
-from drivee2e_data.errors import ScenarioFormatError
+from drivee2e_data.errors import DriveE2EError, ScenarioFormatError
 from drivee2e_data.scenario import AgentClass, SignalState, SubScenario, TimeOfDay, Weather
 from drivee2e_data.sources import drivee2e_clip, v2x_seq
 from tests.factories import assert_sun_matches_label
@@ -277,6 +277,27 @@ def test_bad_input_is_one_clear_error_and_writes_nothing(
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and error[0].startswith("drivee2e: error: ")
     assert not out.exists()
+
+
+def test_a_folder_imports_what_it_can_and_lists_the_failures(
+    v2x_folder: Path, tmp_path: Path, capsys
+):
+    for name in ("scene_002", "scene_003"):
+        write_csv(v2x_folder / "trajectories" / f"{name}.csv", trajectory_rows())
+    (v2x_folder / "trajectories" / "scene_002.csv").write_bytes(b"\xff\xd8\xff\xe0JFIF" * 50)
+    out = tmp_path / "out"
+    assert main(["import", "v2x-seq", str(v2x_folder), "--out", str(out)]) == 1
+    assert store.scenario_ids(out) == ["v2x_scene_001", "v2x_scene_003"]
+    error = capsys.readouterr().err
+    assert "1 failed (nothing of them written):" in error
+    assert "scene_002.csv: not UTF-8 text" in error
+    summary = pipeline.import_source(tmp_path / "again", "v2x-seq", v2x_folder)
+    assert list(summary.failures) == [str(v2x_folder / "trajectories" / "scene_002.csv")]
+    for name in ("scene_001", "scene_003"):
+        (v2x_folder / "trajectories" / f"{name}.csv").write_text("nonsense\n")
+    with pytest.raises(DriveE2EError, match="all 3 clips failed to import; the first: "):
+        pipeline.import_source(tmp_path / "none", "v2x-seq", v2x_folder)
+    assert not (tmp_path / "none").exists()
 
 
 def write_interaction_map(osm: Path) -> None:
