@@ -289,6 +289,13 @@ def read_csv_rows(path: Path, required: Iterable[str]) -> tuple[list[str], list[
         ) from None
     except csv.Error as error:  # a field past csv's size limit (binary data without newlines)
         raise ScenarioFormatError(f"{path}: not a readable CSV file ({error})") from None
+    for index, row in enumerate(rows, start=2):
+        if None in row.values() or None in row:  # fewer or more fields than the header names
+            fields = len(header) + len(row.get(None) or []) - sum(v is None for v in row.values())
+            last = " (the file ends there: truncated?)" if index == len(rows) + 1 else ""
+            raise ScenarioFormatError(
+                f"{path} row {index}: {fields} fields, expected {len(header)}{last}"
+            )
     missing = [name for name in required if name not in header]
     if missing:
         raise ScenarioFormatError(
@@ -297,6 +304,19 @@ def read_csv_rows(path: Path, required: Iterable[str]) -> tuple[list[str], list[
     if not rows:
         raise ScenarioFormatError(f"{path}: file has a header but no rows")
     return header, rows
+
+
+def same_in_every_row(path: Path, rows: list[dict[str, str]], column: str) -> str:
+    """The value `column` holds on every row (one scene is one site); a row that differs is an
+    error naming it (a file cut inside its last row shows up here)."""
+    first = rows[0][column].strip()
+    for index, row in enumerate(rows, start=2):
+        if row[column].strip() != first:
+            raise ScenarioFormatError(
+                f"{path} row {index}: column {column!r} is {row[column]!r}, expected {first!r} "
+                "as on row 2 (one file holds one site)"
+            )
+    return first
 
 
 def number(path: Path, row: int, column: str, text: str | None) -> float:

@@ -48,6 +48,7 @@ from drivee2e_data.sources.common import (
     prune_lane_references,
     read_csv_rows,
     resample_track,
+    same_in_every_row,
     utc_from_ns,
 )
 from drivee2e_data.sun import time_of_day_of
@@ -261,6 +262,8 @@ def read_trajectories(
     error naming file, row and column.
     """
     _, rows = read_csv_rows(path, TRAJECTORY_COLUMNS + list(extra))
+    if "intersect_id" in rows[0]:
+        same_in_every_row(path, rows, "intersect_id")
     parsed: dict[str, list[tuple[int, float, list[float], str, dict[str, str]]]] = {}
     for index, row in enumerate(rows, start=2):
         sub_type = row["sub_type"].strip().lower()
@@ -328,6 +331,12 @@ def read_traffic_lights(
 ) -> tuple[list[SignalTimeline], IntersectionMap]:
     """Signal timelines (one per light row key and colour slot) and the map with their heads."""
     header, rows = read_csv_rows(path, LIGHT_COLUMNS)
+    site = same_in_every_row(path, rows, "intersect_id")
+    if map_id_of(site) != intersection_map.map_id:
+        raise ScenarioFormatError(
+            f"{path} row 2: column 'intersect_id' is {site!r}, which is not the trajectories' "
+            f"site (map {intersection_map.map_id})"
+        )
     slots = [k for k in (1, 2, 3) if f"color_{k}" in header]
     events: dict[str, list[tuple[float, SignalState]]] = {}
     heads: dict[str, tuple[NDArray, float, str]] = {}
