@@ -200,16 +200,12 @@ def _jobs(kind: str, source: Path) -> list[tuple[str, ImportJob]]:
     if not source.exists():
         raise DriveE2EError(f"{source}: no such file or folder")
     if kind == "lanelet2":
-        return [
-            (
-                str(source),
-                lambda: (
-                    lanelet2.read_map(source, f"lanelet2_{source.stem}"),
-                    None,
-                    ImportReport(),
-                ),
-            )
-        ]
+
+        def map_job():
+            report = ImportReport()
+            return lanelet2.read_map(source, f"lanelet2_{source.stem}", report=report), None, report
+
+        return [(str(source), map_job)]
     if kind == "av2":
         if (source / "annotations.feather").exists():
             return [(str(source), partial(_call, argoverse2.import_sensor_log, source))]

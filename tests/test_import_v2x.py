@@ -413,3 +413,20 @@ def test_a_cropped_map_drops_references_outside_it_with_one_warning(
         tmp_path / "STR_000.csv", tmp_path / "route.xml", v2x_folder / "maps" / "hdmap4.json"
     )
     assert any("1 lane references point outside the map crop" in w for w in clip.report.warnings)
+    # a Lanelet2 crop keeps a lanelet whose bound was cut away and a way missing a node
+    osm = tmp_path / "cropped.osm"
+    write_interaction_map(osm)
+    text = osm.read_text().replace(
+        "</osm>",
+        "<way id='12'><nd ref='1'/><nd ref='77'/></way>"
+        "<relation id='21'><member type='way' ref='10' role='left'/>"
+        "<member type='way' ref='66' role='right'/><tag k='type' v='lanelet'/></relation></osm>",
+    )
+    osm.write_text(text)
+    summary = pipeline.import_source(tmp_path / "lanelet2", "lanelet2", osm)
+    assert summary.report.warnings == [
+        "cropped.osm: 1 lanelets and 1 ways reach outside the map crop; dropped"
+    ]
+    assert [
+        lane.lane_id for lane in store.read_map(tmp_path / "lanelet2", summary.maps[0]).lanes
+    ] == ["lanelet_20"]

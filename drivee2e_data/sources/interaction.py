@@ -84,7 +84,7 @@ def import_interaction(
     scenario is `interaction_<recording>` (default: the map's name)."""
     report = ImportReport()
     map_id = f"interaction_{Path(osm_map).stem}"
-    intersection_map = lanelet2.read_map(Path(osm_map), map_id, origin=(0.0, 0.0))
+    intersection_map = lanelet2.read_map(Path(osm_map), map_id, origin=(0.0, 0.0), report=report)
     entries: dict[str, list[tuple[int, dict[str, str], Path]]] = {}
     for path in map(Path, track_csvs):
         _, rows = read_csv_rows(path, COLUMNS)

@@ -33,7 +33,12 @@ from drivee2e_data.hdmap import (
     SignalHead,
     StopLine,
 )
-from drivee2e_data.sources.common import link_lanes_by_geometry, utm_transformer, utm_zone_of
+from drivee2e_data.sources.common import (
+    ImportReport,
+    link_lanes_by_geometry,
+    utm_transformer,
+    utm_zone_of,
+)
 
 ROAD_SUBTYPES = {None, "road", "highway", "main_road", "bus_lane", "bicycle_lane", "play_street"}
 PATTERNS = {
@@ -54,6 +59,7 @@ class OsmData:
         str, tuple[list[tuple[str, str, str]], dict[str, str]]
     ]  # members (type, ref, role)
     origin: GeoOrigin
+    cropped_ways: int = 0  # ways dropped because a crop removed some of their nodes
 
 
 def read_osm(path: Path, origin: tuple[float, float] | None = None) -> OsmData:
@@ -88,14 +94,12 @@ def read_osm(path: Path, origin: tuple[float, float] | None = None) -> OsmData:
     east, north = forward.transform(values[:, 1], values[:, 0])
     local = np.stack([np.asarray(east) - origin_e, np.asarray(north) - origin_n, values[:, 2]], -1)
     nodes = {node_id: local[k] for k, node_id in enumerate(raw)}
-    ways = {}
+    ways, cropped = {}, 0
     for way in root.iter("way"):
         refs = [nd.get("ref") for nd in way.findall("nd")]
-        for ref in refs:
-            if ref not in nodes:
-                raise MapFormatError(
-                    f"{path}: way {way.get('id')} references node {ref}, which the file lacks"
-                )
+        if any(ref not in nodes for ref in refs):  # cut by a map crop: dropped, counted
+            cropped += 1
+            continue
         ways[way.get("id")] = (refs, {t.get("k"): t.get("v") for t in way.findall("tag")})
     relations = {}
     for relation in root.iter("relation"):
@@ -104,7 +108,7 @@ def read_osm(path: Path, origin: tuple[float, float] | None = None) -> OsmData:
             members,
             {t.get("k"): t.get("v") for t in relation.findall("tag")},
         )
-    return OsmData(nodes, ways, relations, GeoOrigin(origin[0], origin[1]))
+    return OsmData(nodes, ways, relations, GeoOrigin(origin[0], origin[1]), cropped)
 
 
 def _line(osm: OsmData, way_id: str) -> NDArray[np.float64]:
@@ -124,11 +128,8 @@ def _bounds(osm: OsmData, path: Path, relation_id: str) -> tuple[NDArray, NDArra
     right = [ref for kind, ref, role in members if kind == "way" and role == "right"]
     if not left or not right:
         return None
-    for ref in (left[0], right[0]):
-        if ref not in osm.ways:
-            raise MapFormatError(
-                f"{path}: lanelet {relation_id} references way {ref}, which the file lacks"
-            )
+    if left[0] not in osm.ways or right[0] not in osm.ways:
+        return None  # a bound lies outside the map crop
     left_line, right_line = _line(osm, left[0]), _line(osm, right[0])
     if np.linalg.norm(left_line[0] - right_line[0]) + np.linalg.norm(
         left_line[-1] - right_line[-1]
@@ -176,10 +177,18 @@ def _zebra_crosswalks(osm: OsmData) -> list[Crosswalk]:
     return crosswalks
 
 
-def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None) -> IntersectionMap:
-    """A Lanelet2 OSM map as an `IntersectionMap` in its local projected frame."""
+def read_map(
+    path: Path,
+    map_id: str,
+    origin: tuple[float, float] | None = None,
+    report: ImportReport | None = None,
+) -> IntersectionMap:
+    """A Lanelet2 OSM map as an `IntersectionMap` in its local projected frame. A map cropped to
+    one site keeps ways and lanelets whose nodes or bounds lie outside it: those are dropped and
+    counted in one warning on `report`."""
     path = Path(path)
     osm = read_osm(path, origin)
+    cropped_lanelets = 0
     lanes, crosswalks, sidewalks = [], [], []
     light_of_lane: dict[str, str] = {}
     lights = {
@@ -189,6 +198,10 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
     }
     for relation_id, (members, tags) in osm.relations.items():
         if tags.get("type") != "lanelet":
+            continue
+        bound_refs = [ref for kind, ref, role in members if role in ("left", "right")]
+        if any(ref not in osm.ways for ref in bound_refs):
+            cropped_lanelets += 1
             continue
         bounds = _bounds(osm, path, relation_id)
         if bounds is None:
@@ -218,6 +231,11 @@ def read_map(path: Path, map_id: str, origin: tuple[float, float] | None = None)
                 )
             )
     lanes = link_lanes_by_geometry(lanes)
+    if (cropped_lanelets or osm.cropped_ways) and report is not None:
+        report.warn(
+            f"{path.name}: {cropped_lanelets} lanelets and {osm.cropped_ways} ways reach outside "
+            "the map crop; dropped"
+        )
     if not crosswalks:
         crosswalks = _zebra_crosswalks(osm)
     stop_lines = []

@@ -227,7 +227,7 @@ def import_sind(city_folder: Path, clip_s: float = 20.0) -> SindImport:
         raise ScenarioFormatError(f"{city_folder}: no recording folder")
     city = _snake(city_folder.name)
     recording = recordings[0]
-    intersection_map = lanelet2.read_map(maps[0], f"sind_{city}", origin=(0.0, 0.0))
+    intersection_map = lanelet2.read_map(maps[0], f"sind_{city}", origin=(0.0, 0.0), report=report)
     lights = sorted([*recording.glob("Traffic*Light*.csv"), *recording.glob("TrafficLight*.csv")])
     if not lights:
         raise ScenarioFormatError(f"{recording}: no traffic-light CSV")
