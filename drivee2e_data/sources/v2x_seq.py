@@ -51,6 +51,7 @@ from drivee2e_data.sources.common import (
     same_in_every_row,
     utc_from_ns,
 )
+from drivee2e_data.sources.markings import derive_markings
 from drivee2e_data.sun import time_of_day_of
 
 SOURCE = "v2x_seq"
@@ -232,19 +233,27 @@ def read_hdmap(
         )
         for cid, entry in (document.get("CROSSWALK") or {}).items()
     ]
+    controlled = [
+        lane_id
+        for lane_id, entry in raw_lanes.items()
+        if _literal(entry.get("has_traffic_control", False), f"{path} LANE[{lane_id}]") is True
+    ]
     try:
-        return IntersectionMap(
-            map_id=map_id,
-            origin=geo_origin_of_utm(float(offset_m[0]), float(offset_m[1]), UTM_ZONE),
-            lanes=tuple(lanes),
-            crosswalks=tuple(crosswalks),
-            stop_lines=tuple(stop_lines),
-            metadata={
-                "source": SOURCE,
-                "file": path.name,
-                "offset_m": offset_m.tolist(),
-                "origin": "approximate: the published frame is a shifted UTM zone 50",
-            },
+        return derive_markings(
+            IntersectionMap(
+                map_id=map_id,
+                origin=geo_origin_of_utm(float(offset_m[0]), float(offset_m[1]), UTM_ZONE),
+                lanes=tuple(lanes),
+                crosswalks=tuple(crosswalks),
+                stop_lines=tuple(stop_lines),
+                metadata={
+                    "source": SOURCE,
+                    "file": path.name,
+                    "offset_m": offset_m.tolist(),
+                    "origin": "approximate: the published frame is a shifted UTM zone 50",
+                },
+            ),
+            controlled,
         )
     except MapFormatError as error:
         raise MapFormatError(f"{path}: {error}") from None
