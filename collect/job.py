@@ -36,6 +36,7 @@ class CollectOptions:
     max_frames: int | None = None  # None: the whole clip
     camera_labels: tuple[str, ...] = ()  # dense labels per camera: depth, semantic, instance
     label_scale: int = DEFAULT_LABEL_SCALE  # labels at 1/scale of the camera resolution
+    lidar: str = "raycast"  # "raycast" (the reference) or "depth" (read from depth images)
 
     def suite(self) -> SuiteOptions:
         return SuiteOptions(
@@ -44,6 +45,7 @@ class CollectOptions:
             self.jpeg_quality,
             camera_labels=self.camera_labels,
             label_scale=self.label_scale,
+            lidar=self.lidar,
         )
 
 
@@ -121,6 +123,7 @@ def collect_clip(
             "renderer": world.renderer,
             "jpeg_quality": str(options.jpeg_quality),
             "cameras": ",".join(c.name for c in suite.rig.cameras),
+            "lidar": options.lidar,
         }
         labels = None
         if options.camera_labels:

@@ -30,6 +30,7 @@ from drivee2e_data.metrics.openloop import CONVENTIONS
 from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, LABEL_KINDS
+from drivee2e_data.sensors.suite import LIDAR_METHODS
 from drivee2e_data.sim.world import RENDERERS
 from drivee2e_data.sources.cutting import CUT_MODES
 
@@ -181,6 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument(
         "--label-scale", type=_positive, default=DEFAULT_LABEL_SCALE,
         help=f"labels at 1/N of the camera resolution (default {DEFAULT_LABEL_SCALE})",
+    )  # fmt: skip
+    collect.add_argument(
+        "--lidar", choices=LIDAR_METHODS, default="raycast",
+        help="LiDAR by ray casting (the reference, default) or read from depth images rendered "
+        "at the LiDAR (fast on a GPU; agrees with ray casting, docs/benchmarks.md)",
     )  # fmt: skip
 
     split = commands.add_parser(
@@ -447,6 +453,7 @@ def _collect(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         camera_labels=args.camera_labels,
         label_scale=args.label_scale,
+        lidar=args.lidar,
     )
     bars: list[tqdm] = []
 

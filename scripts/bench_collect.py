@@ -2,7 +2,7 @@
 a naive reference measured in the same run.
 
     python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
-        [--camera-labels depth,semantic,instance [--label-scale 4]]
+        [--camera-labels depth,semantic,instance [--label-scale 4]] [--lidar depth]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
 written under max(2, --workers) scenario ids so that every worker has a job; each is collected for
@@ -11,8 +11,10 @@ annotations. The reference is the same suite in one process with pybullet's Tiny
 naive pipeline), over `--reference-frames` frames. Prints frames/s of both and their ratio, the
 per-stage time per frame, peak memory per worker and megabytes of log per frame. With
 `--camera-labels`, the suite runs with the dense labels and again without them (the reference
-for their cost), and the slowdown and the log size of both are printed; `--reference-frames 0`
-skips the TinyRenderer reference.
+for their cost), and the slowdown and the log size of both are printed; with `--lidar depth`,
+the suite runs with the depth-image LiDAR and again with ray casting (the reference for it), and
+the speed-up and both LiDAR stage times are printed. `--reference-frames 0` skips the
+TinyRenderer reference.
 """
 
 from __future__ import annotations
@@ -61,12 +63,16 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     parser.add_argument("--camera-labels", default="", help="e.g. depth,semantic,instance")
     parser.add_argument("--label-scale", type=int, default=4)
+    parser.add_argument("--lidar", choices=("raycast", "depth"), default="raycast")
     args = parser.parse_args()
     kinds = tuple(k for k in args.camera_labels.split(",") if k)
     # one job per worker at least (two at least), so every worker has a clip to collect
     suffixes = [f"j{k}" for k in range(max(2, args.workers))]
     labelled = CollectOptions(
-        max_frames=args.frames, camera_labels=kinds, label_scale=args.label_scale
+        max_frames=args.frames,
+        camera_labels=kinds,
+        label_scale=args.label_scale,
+        lidar=args.lidar,
     )
     with tempfile.TemporaryDirectory() as folder:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
@@ -84,7 +90,7 @@ def main() -> None:
         ours_start = time.perf_counter()
         ours = run(root, labelled, args.workers)
         ours_wall = time.perf_counter() - ours_start
-        if kinds:  # the same suite without labels, in the same run
+        if kinds or args.lidar != "raycast":  # the plain suite, in the same run
             plain_root = Path(folder) / "plain"
             store.write_map(plain_root, intersection_map)
             for suffix in suffixes:
@@ -124,6 +130,13 @@ def main() -> None:
             f"without labels {plain_fps:6.2f} frames/s (reference), with {','.join(kinds)} at "
             f"1/{args.label_scale} resolution {ours_fps:6.2f}: {100 * (plain_fps / ours_fps - 1):.1f}% "
             f"slower; log {plain_mb:.2f} -> {sum(r.log_bytes for r in collected) / ours.frames / 1e6:.2f} MB per frame"
+        )
+    if args.lidar != "raycast":
+        plain_fps = plain.frames / plain_wall
+        print(
+            f"ray-cast LiDAR (reference) {plain_fps:6.2f} frames/s, LiDAR "
+            f"{stage_table(plain)['lidar']:.1f} ms a frame; depth-image LiDAR {ours_fps:6.2f} "
+            f"frames/s, LiDAR {stages['lidar']:.1f} ms: {ours_fps / plain_fps:.2f}x"
         )
     print("per frame, ms (summed over workers):")
     for stage, milliseconds in stages.items():

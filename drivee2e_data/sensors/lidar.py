@@ -66,41 +66,61 @@ def sweep(
     """Cast one full sweep from the LiDAR at `sensor_to_world` (4x4). `kinds` names static
     bodies (anything else is an agent); `paint` says where road hits land on markings, which
     rays pass through as drawn-only bodies."""
-    import pybullet
-
     directions, ring = beam_directions(lidar)
     origin = sensor_to_world[:3, 3]
     world_directions = directions @ sensor_to_world[:3, :3].T
-    ends = origin + lidar.range_m * world_directions
-    # numpy arrays go in as they are: converting 115,200 rays to lists costs a fifth of a sweep
-    starts = np.repeat(origin[None], MAX_RAYS_PER_BATCH, axis=0)
-    hits = []
-    for start in range(0, len(directions), MAX_RAYS_PER_BATCH):
-        stop = min(start + MAX_RAYS_PER_BATCH, len(directions))
-        hits.extend(
-            pybullet.rayTestBatch(starts[: stop - start], ends[start:stop], physicsClientId=client)
-        )
-    body = np.fromiter((h[0] for h in hits), np.int32, len(hits))
-    fraction = np.fromiter((h[2] for h in hits), np.float64, len(hits))
+    body, distance = cast(client, origin, world_directions, lidar.range_m)
     hit = body >= 0
-    body, distance = body[hit], fraction[hit] * lidar.range_m
-    intensity = _intensity_table(kinds, int(body.max(initial=0)))[body]
-    if paint is not None:
-        road = np.isin(body, [b for b, kind in kinds.items() if kind == "road"])
-        xy = origin[:2] + world_directions[hit][road, :2] * distance[road, None]
-        codes = paint.kind_codes(xy)
-        painted = np.flatnonzero(road)[codes > 0]
-        marks = np.array([INTENSITY[kind] for kind in paint.kinds], np.float32)
-        intensity[painted] = marks[codes[codes > 0] - 1]
+    body, distance = body[hit], distance[hit]
+    hit_xy = origin[:2] + world_directions[hit, :2] * distance[:, None]
     return LidarSweep(
         points_m=(directions[hit] * distance[:, None]).astype(np.float32),
-        intensity=intensity,
+        intensity=intensities(kinds, body, hit_xy, paint),
         ring=ring[hit],
         body=body,
     )
 
 
-def _intensity_table(kinds: dict[int, str], largest_body: int) -> NDArray[np.float32]:
+def cast(
+    client: int, origin: NDArray[np.float64], world_directions: NDArray[np.float64], range_m: float
+) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+    """Body hit (-1 for none) and range (m) of rays from `origin` along `world_directions`
+    `(N, 3)`, up to `range_m`."""
+    import pybullet
+
+    ends = origin + range_m * world_directions
+    # numpy arrays go in as they are: converting 115,200 rays to lists costs a fifth of a sweep
+    starts = np.repeat(origin[None], MAX_RAYS_PER_BATCH, axis=0)
+    hits = []
+    for start in range(0, len(world_directions), MAX_RAYS_PER_BATCH):
+        stop = min(start + MAX_RAYS_PER_BATCH, len(world_directions))
+        hits.extend(
+            pybullet.rayTestBatch(starts[: stop - start], ends[start:stop], physicsClientId=client)
+        )
+    body = np.fromiter((h[0] for h in hits), np.int32, len(hits))
+    fraction = np.fromiter((h[2] for h in hits), np.float64, len(hits))
+    return body, np.where(body >= 0, fraction * range_m, np.nan)
+
+
+def intensities(
+    kinds: dict[int, str],
+    body: NDArray[np.int32],
+    hit_xy_m: NDArray[np.float64],
+    paint: PaintRaster | None,
+) -> NDArray[np.float32]:
+    """Reflectivity of each hit: by the surface class of the body, and, for road hits, of the
+    marking the paint raster shows at `hit_xy_m` `(N, 2)` (world frame), if any."""
+    intensity = intensity_table(kinds, int(body.max(initial=0)))[body]
+    if paint is not None:
+        road = np.isin(body, [b for b, kind in kinds.items() if kind == "road"])
+        codes = paint.kind_codes(hit_xy_m[road])
+        painted = np.flatnonzero(road)[codes > 0]
+        marks = np.array([INTENSITY[kind] for kind in paint.kinds], np.float32)
+        intensity[painted] = marks[codes[codes > 0] - 1]
+    return intensity
+
+
+def intensity_table(kinds: dict[int, str], largest_body: int) -> NDArray[np.float32]:
     """Reflectivity indexed by body id: by surface kind for the twin's bodies, else an agent's."""
     table = np.full(max(largest_body, *kinds, 0) + 1, AGENT_INTENSITY, np.float32)
     for body, kind in kinds.items():

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import SignalState
-from drivee2e_data.sensors import annotate, bev, camera_labels, lidar, radar
+from drivee2e_data.sensors import annotate, bev, camera_labels, lidar, lidar_depth, radar
 from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render, with_conditions
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
@@ -29,6 +29,9 @@ STAGES = ("render", "post_process", "jpeg", "labels", "lidar", "radar", "annotat
 ANNOTATION_RANGE_M = 100.0  # boxes farther from the ego than this are not annotated
 
 
+LIDAR_METHODS = ("raycast", "depth")
+
+
 @dataclass(frozen=True)
 class SuiteOptions:
     cameras: tuple[str, ...] | None = None  # None: all six
@@ -37,6 +40,7 @@ class SuiteOptions:
     bev_size_px: int = bev.DEFAULT_SIZE_PX
     camera_labels: tuple[str, ...] = ()  # some of camera_labels.LABEL_KINDS
     label_scale: int = DEFAULT_LABEL_SCALE
+    lidar: str = "raycast"  # one of LIDAR_METHODS: ray casting, or read from depth images
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,10 @@ class SensorSuite:
         scenario = world.scenario
         self.motion: EgoMotion = ego_motion(scenario)
         self.imu_acceleration, self.imu_angular_velocity = imu(scenario.ego)
+        if self.options.lidar not in LIDAR_METHODS:
+            raise ValueError(
+                f"lidar {self.options.lidar!r}: expected one of {', '.join(LIDAR_METHODS)}"
+            )
         unknown = set(self.options.camera_labels) - set(camera_labels.LABEL_KINDS)
         if unknown:
             raise ValueError(
@@ -133,13 +141,18 @@ class SensorSuite:
             views.append(view)
         with _timed(seconds, "lidar"):
             lidar_to_world = ego_to_world @ self.rig.lidar.sensor_to_ego
-            sweep = lidar.sweep(
-                world.client,
-                self.rig.lidar,
-                lidar_to_world,
-                world.twin.segmentation,
-                world.twin.paint_raster(),
-            )
+            if self.options.lidar == "depth":
+                sweep = lidar_depth.depth_sweep(
+                    world, self.rig.lidar, lidar_to_world, world.twin.paint_raster()
+                )
+            else:
+                sweep = lidar.sweep(
+                    world.client,
+                    self.rig.lidar,
+                    lidar_to_world,
+                    world.twin.segmentation,
+                    world.twin.paint_raster(),
+                )
         with _timed(seconds, "radar"):
             velocity = np.array([ego.vx_mps[frame], ego.vy_mps[frame]])
             returns = {

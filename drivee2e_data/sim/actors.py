@@ -85,7 +85,14 @@ def create_actor(client: int, blueprint: Blueprint) -> int:
         visualFramePositions=[list(o) for o in offsets],
         physicsClientId=client,
     )
-    collision = pybullet.createCollisionShape(
-        pybullet.GEOM_BOX, halfExtents=[length / 2, width / 2, height / 2], physicsClientId=client
-    )  # the annotation box is what LiDAR and radar see
+    # LiDAR rays hit what the cameras see (and what the depth-image LiDAR reads): the
+    # collision shapes are the visual ones; the annotation box stays the blueprint's box
+    collision = pybullet.createCollisionShapeArray(
+        shapeTypes=list(kinds),
+        halfExtents=[e.get("halfExtents", [0, 0, 0]) for e in extras],
+        radii=[e.get("radius", 0.0) for e in extras],
+        lengths=[e.get("length", 0.0) for e in extras],
+        collisionFramePositions=[list(o) for o in offsets],
+        physicsClientId=client,
+    )
     return pybullet.createMultiBody(0, collision, visual, [0, 0, -100], physicsClientId=client)

@@ -1,0 +1,123 @@
+"""The 64-channel LiDAR read from depth images: six narrow views around the LiDAR's origin, each
+covering 60 degrees of azimuth and the beams' elevations, rendered with the body mask at about
+the beam pattern's resolution; every beam takes the range the depth image holds along it.
+
+The renderer does what ray casting does on the CPU, nearly for free on a GPU. For a plane,
+inverse depth is affine in image coordinates, so a beam between pixel centres takes the bilinear
+interpolation of the four neighbours' inverse depth when all four show the same body (exact on
+flat surfaces). Where they show different bodies (a silhouette, about 4% of the beams), the
+beam is cast as a ray: a nearest-pixel guess there moves a box's outline by up to half a pixel,
+and a box top lying along a beam ring then gains or loses a whole row of points. It sees what the cameras see: agents' visual shapes, which are their collision
+shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
+`sensors/lidar.py` (ray casting) stays the reference; `tests/test_lidar.py` checks they agree.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sensors.lidar import LidarSweep, beam_directions, cast, intensities
+from drivee2e_data.sensors.rig import Lidar
+from drivee2e_data.sim.twin import PaintRaster
+
+VIEWS = 6  # views around the LiDAR, each 360 / VIEWS degrees of azimuth wide
+OVERSAMPLE = 1.5  # pixels per azimuth step at the centre of a view
+NEAR_M = 0.3  # closer than this, nothing is seen (the roof-mounted LiDAR clears its own car)
+
+
+def _view_geometry(lidar: Lidar) -> tuple[float, int, int, float]:
+    """(focal length in pixels, width, height, vertical field of view in degrees) of one view."""
+    half_width = math.pi / VIEWS
+    focal = OVERSAMPLE / math.tan(math.radians(lidar.azimuth_step_deg))
+    steepest = max(abs(math.radians(lidar.upper_deg)), abs(math.radians(lidar.lower_deg)))
+    half_height = math.atan(math.tan(steepest) / math.cos(half_width))
+    width = 2 * math.ceil(focal * math.tan(half_width)) + 2
+    height = 2 * math.ceil(focal * math.tan(half_height)) + 2
+    vertical_fov = math.degrees(2 * math.atan(height / (2 * focal)))
+    return focal, width, height, vertical_fov
+
+
+def depth_sweep(
+    world, lidar: Lidar, sensor_to_world: NDArray[np.float64], paint: PaintRaster | None = None
+) -> LidarSweep:
+    """One full sweep from the LiDAR at `sensor_to_world` (4x4), read from `world`'s renders;
+    beams at silhouettes (where neighbouring pixels show different bodies, about 4% of them)
+    are cast as rays instead, so edges fall exactly where ray casting puts them. `paint` gives
+    road hits their markings' intensity, as in `lidar.sweep`."""
+    directions, ring = beam_directions(lidar)
+    focal, width, height, vertical_fov = _view_geometry(lidar)
+    azimuth = np.arctan2(directions[:, 1], directions[:, 0])
+    elevation = np.arcsin(np.clip(directions[:, 2], -1.0, 1.0))
+    view_of = np.floor((azimuth + math.pi / VIEWS) / (2 * math.pi / VIEWS)).astype(int) % VIEWS
+    origin = sensor_to_world[:3, 3]
+    rotation = sensor_to_world[:3, :3]
+    distance = np.full(len(directions), np.nan)
+    body = np.full(len(directions), -1, np.int64)
+    edge = np.zeros(len(directions), dtype=bool)
+    for view in range(VIEWS):
+        beams = np.flatnonzero(view_of == view)
+        centre_azimuth = view * 2 * math.pi / VIEWS
+        forward = rotation @ np.array([math.cos(centre_azimuth), math.sin(centre_azimuth), 0.0])
+        image = world.render(
+            origin,
+            origin + forward,
+            width,
+            height,
+            vertical_fov,
+            far_m=lidar.range_m,
+            segmentation=True,
+            near_m=NEAR_M,
+            up=rotation[:, 2],
+        )
+        relative = azimuth[beams] - centre_azimuth
+        relative = (relative + math.pi) % (2 * math.pi) - math.pi
+        # image coordinates of each beam, pixel centres at integers; x right, row 0 at the top
+        column = width / 2 - 0.5 - focal * np.tan(relative)
+        row = height / 2 - 0.5 - focal * np.tan(elevation[beams]) / np.cos(relative)
+        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, column, row)
+        along = np.cos(elevation[beams]) * np.cos(relative)  # the beam's share of the view axis
+        distance[beams] = depth / along
+        body[beams] = hit_body
+        edge[beams] = at_edge
+    world_directions = directions @ rotation.T
+    edges = np.flatnonzero(edge)
+    body[edges], distance[edges] = cast(
+        world.client, origin, world_directions[edges], lidar.range_m
+    )
+    hit = (body >= 0) & (distance <= lidar.range_m)
+    hit_body = body[hit].astype(np.int32)
+    hit_xy = origin[:2] + world_directions[hit, :2] * distance[hit, None]
+    return LidarSweep(
+        points_m=(directions[hit] * distance[hit, None]).astype(np.float32),
+        intensity=intensities(world.twin.segmentation, hit_body, hit_xy, paint),
+        ring=ring[hit],
+        body=hit_body,
+    )
+
+
+def _sample(
+    depth_m: NDArray[np.float32], mask: NDArray[np.int32], column: NDArray, row: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
+    """Depth and body along each beam, and whether it lies at an edge: inverse depth
+    interpolated bilinearly where the four neighbouring pixels show one body, the nearest
+    pixel's depth otherwise (an edge)."""
+    height, width = depth_m.shape
+    bodies = np.where(mask >= 0, mask & ((1 << 24) - 1), -1)
+    left = np.clip(np.floor(column).astype(int), 0, width - 2)
+    top = np.clip(np.floor(row).astype(int), 0, height - 2)
+    dx = np.clip(column - left, 0.0, 1.0)
+    dy = np.clip(row - top, 0.0, 1.0)
+    corners = [(top, left), (top, left + 1), (top + 1, left), (top + 1, left + 1)]
+    weights = [(1 - dx) * (1 - dy), dx * (1 - dy), (1 - dx) * dy, dx * dy]
+    corner_bodies = np.stack([bodies[r, c] for r, c in corners])
+    corner_depths = np.stack([depth_m[r, c] for r, c in corners]).astype(np.float64)
+    same = (corner_bodies == corner_bodies[0]).all(axis=0) & (corner_bodies[0] >= 0)
+    inverse = sum(w / d for w, d in zip(weights, corner_depths, strict=True))
+    nearest = np.argmax(np.stack(weights), axis=0)
+    picked = np.arange(len(column))
+    depth = np.where(same, 1.0 / inverse, corner_depths[nearest, picked])
+    edge = ~(corner_bodies == corner_bodies[0]).all(axis=0)
+    return depth, corner_bodies[nearest, picked].astype(np.int64), edge
