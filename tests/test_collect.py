@@ -256,3 +256,16 @@ def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsy
     assert "1 clips collected, 0 already done, 1 failed" in captured.out
     assert f"failed: {ids[0]}:" in captured.err and "tracks.parquet" in captured.err
     assert [p.name for p in (root / "logs").glob("*.mcap")] == [f"{ids[1]}.mcap"]
+
+
+def test_the_host_plan_fits_cores_clips_memory_and_gpu():
+    from drivee2e_data.collect.host import plan
+
+    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True)
+    assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
+    assert "16 workers, depth LiDAR" in gpu_host.describe()
+    assert plan(clips=3, cores=16, memory=125.0, gpu=False).workers == 3  # one per clip at most
+    assert plan(clips=100, cores=16, memory=6.0, gpu=False).workers == 4  # 1.5 GiB each
+    laptop = plan(clips=12, cores=2, memory=24.0, gpu=False)
+    assert (laptop.workers, laptop.lidar) == (2, "raycast")
+    assert plan(clips=0, cores=2, memory=1.0, gpu=False).workers == 1
