@@ -24,20 +24,6 @@ from drivee2e_data.sensors.suite import SensorSuite
 from drivee2e_data.sim.world import World
 
 
-def per_beam(result: lidar.LidarSweep, rig_lidar) -> np.ndarray:
-    """Range per beam (NaN where it returned nothing)."""
-    steps = len(rig_lidar.azimuths_rad)
-    unit = result.points_m / np.linalg.norm(result.points_m, axis=1, keepdims=True)
-    azimuth = np.degrees(np.arctan2(unit[:, 1], unit[:, 0])) % 360.0
-    index = (
-        result.ring.astype(int) * steps
-        + np.round(azimuth / rig_lidar.azimuth_step_deg).astype(int) % steps
-    )
-    ranges = np.full(rig_lidar.channels * steps, np.nan)
-    ranges[index] = np.linalg.norm(result.points_m, axis=1)
-    return ranges
-
-
 def timed(function, repeats: int):
     function()  # warm up (first renders set up buffers)
     start = time.perf_counter()
@@ -71,7 +57,7 @@ def main() -> None:
     print(f"ray casting (reference) {1000 * cast_s:7.1f} ms a sweep, {len(cast.ring)} points")
     print(f"depth images            {1000 * read_s:7.1f} ms a sweep, {len(read.ring)} points")
     print(f"ratio                   {cast_s / read_s:7.2f}x")
-    a, b = per_beam(cast, rig_lidar), per_beam(read, rig_lidar)
+    a, b = lidar.ranges_per_beam(cast, rig_lidar), lidar.ranges_per_beam(read, rig_lidar)
     both = np.isfinite(a) & np.isfinite(b)
     difference = np.abs(a[both] - b[both])
     print(

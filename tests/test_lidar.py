@@ -4,7 +4,7 @@ import numpy as np
 import pybullet
 import pytest
 
-from drivee2e_data.sensors.lidar import INTENSITY, beam_directions, sweep
+from drivee2e_data.sensors.lidar import INTENSITY, beam_directions, ranges_per_beam, sweep
 from drivee2e_data.sensors.rig import default_rig, pose
 
 HEIGHT_M = 1.85  # the rig's LiDAR mount height
@@ -89,22 +89,6 @@ def test_sweep_in_a_twin_sees_road_paint_and_agents(tmp_path):
     assert len(result.points_m) > 50_000  # most downward beams return
 
 
-def _per_beam(result, lidar):
-    """Range and body per beam (NaN / -1 where the beam returned nothing)."""
-    azimuth_steps = len(lidar.azimuths_rad)
-    unit = result.points_m / np.linalg.norm(result.points_m, axis=1, keepdims=True)
-    azimuth = np.degrees(np.arctan2(unit[:, 1], unit[:, 0])) % 360.0
-    index = (
-        result.ring.astype(int) * azimuth_steps
-        + np.round(azimuth / lidar.azimuth_step_deg).astype(int) % azimuth_steps
-    )
-    ranges = np.full(lidar.channels * azimuth_steps, np.nan)
-    bodies = np.full(lidar.channels * azimuth_steps, -1)
-    ranges[index] = np.linalg.norm(result.points_m, axis=1)
-    bodies[index] = result.body
-    return ranges, bodies
-
-
 def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
     """The same frame of a synthetic twin swept both ways: ranges on hits both see within 2 cm
     (median), the same rings, and the same number of points on every box with 50 or more."""
@@ -125,8 +109,8 @@ def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
         cast = sweep(world.client, lidar, sensor_to_world, world.twin.segmentation, paint)
         read = depth_sweep(world, lidar, sensor_to_world, paint)
         agents = set(world.bodies.values())
-    cast_range, _ = _per_beam(cast, lidar)
-    read_range, _ = _per_beam(read, lidar)
+    cast_range = ranges_per_beam(cast, lidar)
+    read_range = ranges_per_beam(read, lidar)
     both = np.isfinite(cast_range) & np.isfinite(read_range)
     assert both.sum() > 0.99 * min(len(cast.ring), len(read.ring))
     assert np.median(np.abs(cast_range[both] - read_range[both])) < 0.02

@@ -56,6 +56,18 @@ def beam_directions(lidar: Lidar) -> tuple[NDArray[np.float64], NDArray[np.uint8
     return directions, ring
 
 
+def ranges_per_beam(result: LidarSweep, lidar: Lidar) -> NDArray[np.float64]:
+    """`(channels * azimuth steps,)` range of each beam of a sweep, ring by ring (NaN where it
+    returned nothing), to compare two sweeps beam by beam."""
+    steps = len(lidar.azimuths_rad)
+    unit = result.points_m / np.linalg.norm(result.points_m, axis=1, keepdims=True)
+    azimuth = np.degrees(np.arctan2(unit[:, 1], unit[:, 0])) % 360.0
+    step = np.round(azimuth / lidar.azimuth_step_deg).astype(int) % steps
+    ranges = np.full(lidar.channels * steps, np.nan)
+    ranges[result.ring.astype(int) * steps + step] = np.linalg.norm(result.points_m, axis=1)
+    return ranges
+
+
 def sweep(
     client: int,
     lidar: Lidar,

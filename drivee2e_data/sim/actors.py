@@ -76,23 +76,21 @@ def create_actor(client: int, blueprint: Blueprint) -> int:
                   (pybullet.GEOM_BOX, {"halfExtents": [length * cabin / 2, width * 0.45, height * 0.2]},
                    [-length * (1 - cabin) * 0.1, 0, height * 0.3], (0.15, 0.2, 0.25, 1.0))]  # fmt: skip
     kinds, extras, offsets, colours = zip(*shapes, strict=True)
+    geometry = {
+        "shapeTypes": list(kinds),
+        "halfExtents": [e.get("halfExtents", [0, 0, 0]) for e in extras],
+        "radii": [e.get("radius", 0.0) for e in extras],
+        "lengths": [e.get("length", 0.0) for e in extras],
+        "physicsClientId": client,
+    }
     visual = pybullet.createVisualShapeArray(
-        shapeTypes=list(kinds),
-        halfExtents=[e.get("halfExtents", [0, 0, 0]) for e in extras],
-        radii=[e.get("radius", 0.0) for e in extras],
-        lengths=[e.get("length", 0.0) for e in extras],
         rgbaColors=[list(c) for c in colours],
         visualFramePositions=[list(o) for o in offsets],
-        physicsClientId=client,
+        **geometry,
     )
     # LiDAR rays hit what the cameras see (and what the depth-image LiDAR reads): the
     # collision shapes are the visual ones; the annotation box stays the blueprint's box
     collision = pybullet.createCollisionShapeArray(
-        shapeTypes=list(kinds),
-        halfExtents=[e.get("halfExtents", [0, 0, 0]) for e in extras],
-        radii=[e.get("radius", 0.0) for e in extras],
-        lengths=[e.get("length", 0.0) for e in extras],
-        collisionFramePositions=[list(o) for o in offsets],
-        physicsClientId=client,
+        collisionFramePositions=[list(o) for o in offsets], **geometry
     )
     return pybullet.createMultiBody(0, collision, visual, [0, 0, -100], physicsClientId=client)
