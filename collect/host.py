@@ -28,8 +28,8 @@ class HostPlan:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device} -> "
-            f"{self.workers} worker{'s' if self.workers != 1 else ''}, {self.lidar} LiDAR "
-            "(override with --workers, --lidar)"
+            f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
+            f"{self.lidar} LiDAR"
         )
 
 

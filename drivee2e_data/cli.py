@@ -55,6 +55,10 @@ def _positive(text: str) -> int:
     return value
 
 
+def _workers(text: str) -> int | str:
+    return "auto" if text == "auto" else _positive(text)
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -163,8 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     collect.add_argument("data", type=Path, help="data root (curated: every clip needs an ego)")
     collect.add_argument(
-        "--workers", type=_positive, default=None,
-        help="processes (default: the host's cores, at most one per clip and 1.5 GiB)",
+        "--workers", type=_workers, default=1,
+        help="processes, or 'auto': the host's cores, at most one per clip and 1.5 GiB each "
+        "(default 1)",
     )  # fmt: skip
     collect.add_argument("--backend", choices=BACKENDS, default="local")
     collect.add_argument("--renderer", choices=RENDERERS, default="auto")
@@ -452,9 +457,9 @@ def _size(text: str) -> tuple[int, int]:
 def _collect(args: argparse.Namespace) -> int:
     clips = len(args.only) if args.only else len(store.scenario_ids(args.data))
     host = collect_host.plan(clips)
-    if clips and (args.workers is None or args.lidar is None):
+    if clips and (args.workers == "auto" or args.lidar is None):
         print(host.describe(), file=sys.stderr)
-    workers = args.workers or host.workers
+    workers = host.workers if args.workers == "auto" else args.workers
     options = CollectOptions(
         renderer=args.renderer,
         cameras=tuple(args.cameras) if args.cameras else None,

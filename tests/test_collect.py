@@ -56,7 +56,7 @@ def _wait_until(condition, process: subprocess.Popen, seconds: float = 240) -> N
 def test_sigkill_mid_clip_then_rerun_completes_every_log(synthetic_root: Path, tmp_path: Path):
     ids = store.scenario_ids(synthetic_root)[2:5]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
-    process = _start_collector(root, ["--max-frames", "8"])
+    process = _start_collector(root, ["--max-frames", "8", "--workers", "1"])
     logs = root / "logs"
 
     def second_clip_begun() -> bool:
@@ -263,7 +263,7 @@ def test_the_host_plan_fits_cores_clips_memory_and_gpu():
 
     gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True)
     assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
-    assert "16 workers, depth LiDAR" in gpu_host.describe()
+    assert "16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
     assert plan(clips=3, cores=16, memory=125.0, gpu=False).workers == 3  # one per clip at most
     assert plan(clips=100, cores=16, memory=6.0, gpu=False).workers == 4  # 1.5 GiB each
     laptop = plan(clips=12, cores=2, memory=24.0, gpu=False)

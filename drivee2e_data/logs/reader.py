@@ -19,6 +19,7 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap_protobuf.decoder import DecoderFactory
 from numpy.typing import NDArray
+from zstandard import ZstdError
 
 from drivee2e_data.errors import LogFormatError
 from drivee2e_data.logs import topics
@@ -51,7 +52,7 @@ class LogReader:
             metadata = {
                 record.name: dict(record.metadata) for record in self._reader.iter_metadata()
             }
-        except (McapError, ValueError, EOFError, OSError) as error:
+        except (McapError, ValueError, EOFError, OSError, ZstdError) as error:
             self._file.close()
             raise LogFormatError(f"{self.path}: not a complete MCAP log ({error})") from None
         if summary is None:
@@ -141,7 +142,7 @@ class LogReader:
                     topics=wanted, starting_at=t, ending_at=t
                 )
             }
-        except (McapError, EOFError, ValueError) as error:
+        except (McapError, EOFError, ValueError, ZstdError) as error:
             raise LogFormatError(
                 f"{self.path}: unreadable chunk at frame {frame} ({error})"
             ) from None
@@ -151,7 +152,7 @@ class LogReader:
         Reads only the chunks that hold these topics."""
         try:
             yield from self._reader.iter_decoded_messages(topics=list(topic_names))
-        except McapError as error:
+        except (McapError, ZstdError) as error:  # a damaged chunk fails to inflate
             raise LogFormatError(f"{self.path}: unreadable chunk ({error})") from None
 
     def frame_raw(self, frame: int, topic_names: Iterable[str]) -> dict[str, bytes]:
@@ -187,7 +188,7 @@ class LogReader:
                         if topic in wanted:
                             found[topic] = record.data
             return found
-        except (McapError, EOFError, ValueError) as error:
+        except (McapError, EOFError, ValueError, ZstdError) as error:
             raise LogFormatError(
                 f"{self.path}: unreadable chunk at frame {frame} ({error})"
             ) from None
@@ -228,7 +229,7 @@ class LogReader:
                         f"{message.log_time}, which is no frame of the log"
                     )
                 seen[(channel.topic, message.log_time)] += 1
-        except McapError as error:
+        except (McapError, ZstdError) as error:  # a damaged chunk fails to inflate
             raise LogFormatError(f"{self.path}: unreadable chunk ({error})") from None
         first = int(self.t_ns[0])
         for t, frame in times.items():
