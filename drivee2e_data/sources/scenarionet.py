@@ -19,7 +19,7 @@ from __future__ import annotations
 import io
 import math
 import pickle
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 from datetime import date
 from pathlib import Path
@@ -640,15 +640,20 @@ def _stop_sign_line(
     if position is None or not controlled:
         return None
     point = shapely.Point(np.asarray(position, dtype=np.float64)[:2] - offset[:2])
-    lane = controlled[0]
+    return StopLine(
+        f"stop_sign_{_safe(key)}",
+        _across(controlled[0], point),
+        tuple(lane.lane_id for lane in controlled),
+    )
+
+
+def _across(lane: Lane, point: shapely.Point) -> NDArray[np.float64]:
+    """`(2, 3)` a line across `lane` from its left to its right boundary, at the point of its
+    centre line nearest `point` (on the ground)."""
     along = shapely.LineString(lane.centerline_m[:, :2]).project(point)
     left = shapely.LineString(lane.left_boundary_m[:, :2]).interpolate(along)
     right = shapely.LineString(lane.right_boundary_m[:, :2]).interpolate(along)
-    return StopLine(
-        f"stop_sign_{_safe(key)}",
-        np.array([[left.x, left.y, 0.0], [right.x, right.y, 0.0]]),
-        tuple(lane.lane_id for lane in controlled),
-    )
+    return np.array([[left.x, left.y, 0.0], [right.x, right.y, 0.0]])
 
 
 # ------------------------------------------------------------------------------------ lights
@@ -706,9 +711,6 @@ def _with_signal_heads(
         signal_id = f"light_{_safe(str(key))}"
         lane = lanes[lane_id]
         stop = np.asarray(entry["stop_point"], dtype=np.float64)[:2] - offset[:2]
-        along = shapely.LineString(lane.centerline_m[:, :2]).project(shapely.Point(stop))
-        left = shapely.LineString(lane.left_boundary_m[:, :2]).interpolate(along)
-        right = shapely.LineString(lane.right_boundary_m[:, :2]).interpolate(along)
         back = lane.centerline_m[0, :2] - lane.centerline_m[-1, :2]
         heads.append(
             SignalHead(
@@ -720,11 +722,7 @@ def _with_signal_heads(
             )
         )
         stop_lines.append(
-            StopLine(
-                f"stop_{signal_id}",
-                np.array([[left.x, left.y, 0.0], [right.x, right.y, 0.0]]),
-                (lane_id,),
-            )
+            StopLine(f"stop_{signal_id}", _across(lane, shapely.Point(stop)), (lane_id,))
         )
         lanes[lane_id] = replace(lane, signal_id=signal_id)
     return replace(
@@ -733,9 +731,3 @@ def _with_signal_heads(
         signal_heads=tuple(heads),
         stop_lines=tuple(stop_lines),
     )
-
-
-def import_folder(source: Path) -> Iterable[Imported]:
-    """Every scenario of a file, folder or database, one at a time."""
-    for path in scenario_files(source):
-        yield import_scenario(path)
