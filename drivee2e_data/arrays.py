@@ -1,4 +1,5 @@
-"""Helpers for frozen dataclasses that hold numpy arrays: read-only copies and value equality."""
+"""Helpers for numpy arrays: read-only copies and value equality for frozen dataclasses, and
+nearest-pixel resampling of images."""
 
 from __future__ import annotations
 
@@ -41,3 +42,10 @@ class ArrayValueEq:
         return values_equal(self, other)
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def nearest_indices(size: int, source_size: int) -> NDArray[np.intp]:
+    """For each of `size` output pixels along one axis, the source pixel (of `source_size`) whose
+    area holds the output pixel's centre."""
+    centres = (np.arange(size) + 0.5) * source_size / size
+    return np.minimum(centres.astype(np.intp), source_size - 1)

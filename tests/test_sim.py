@@ -235,3 +235,58 @@ def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
         other = type(scenarios[0])(**{**scenarios[0].__dict__, "map_id": "elsewhere"})
         with pytest.raises(DriveE2EError, match="is on map 'elsewhere'"):
             world.replay(other)
+
+
+def _front_view(world: World, scenario, frame: int, size=(160, 90), **options):
+    ego = scenario.ego
+    world.place_ego(ego.x_m[frame], ego.y_m[frame], ego.track_id)
+    world.set_time(frame)
+    eye = np.array([ego.x_m[frame], ego.y_m[frame], 1.6])
+    yaw = ego.yaw_rad[frame]
+    target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    return world.render(eye, target, *size, 40.0, **options)
+
+
+def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):
+    """pybullet's EGL plugin draws only in the newest client's context: an older world rendering
+    after a newer one came and went read back garbage (seen as a collection in a test session
+    writing noise); it is now an error, and `world_for` builds a fresh world instead."""
+    from drivee2e_data.sim.world import world_for
+
+    intersection_map, scenario = clip
+    older = World(intersection_map, scenario, renderer="auto")
+    if older.renderer != "egl":
+        older.close()
+        pytest.skip("pybullet's EGL plugin does not load here")
+    try:
+        before = _front_view(older, scenario, 10)
+        with World(intersection_map, scenario, renderer="egl"):
+            pass
+        assert not older.can_render
+        with pytest.raises(DriveE2EError, match="superseded"):
+            _front_view(older, scenario, 10)
+        fresh = world_for(older, scenario, lambda map_id: intersection_map)
+        assert fresh is not older
+        with fresh:
+            assert np.array_equal(_front_view(fresh, scenario, 10).rgb, before.rgb)
+    finally:
+        older.close()
+
+
+def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
+    """The EGL plugin draws at most 1024x768: a 1600x900 request comes back at 1600x900, its
+    body mask the nearest drawn pixel's (the native drawing, resized by index)."""
+    intersection_map, scenario = clip
+    with World(intersection_map, scenario, renderer="auto") as world:
+        if world.renderer != "egl":
+            pytest.skip("pybullet's EGL plugin does not load here")
+        assert world.drawn_size(1600, 900) == (1024, 768)
+        assert world.drawn_size(320, 180) == (320, 180)
+        full = _front_view(world, scenario, 10, (1600, 900), segmentation=True)
+        native = _front_view(world, scenario, 10, (1600, 900), segmentation=True, native=True)
+    assert full.rgb.shape == (900, 1600, 3) and native.rgb.shape == (768, 1024, 3)
+    rows = ((np.arange(900) + 0.5) * 768 / 900).astype(int)
+    columns = ((np.arange(1600) + 0.5) * 1024 / 1600).astype(int)
+    assert np.array_equal(full.segmentation, native.segmentation[rows[:, None], columns])
+    assert np.array_equal(full.depth_m, native.depth_m[rows[:, None], columns])
+    assert np.abs(full.rgb.astype(int).mean((0, 1)) - native.rgb.mean((0, 1))).max() < 2.0

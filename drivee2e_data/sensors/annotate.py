@@ -7,6 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import shapely
+import shapely.affinity
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import Track
@@ -61,15 +62,20 @@ def visible_share(
     corners_world: NDArray[np.float64],
     ego_to_world: NDArray[np.float64],
 ) -> float:
-    """Share of the box's projected area (in the image) whose pixels show the body itself."""
+    """Share of the box's projected area (in the image) whose pixels show the body itself,
+    counted in the mask as drawn."""
     if frame.mask is None:
         raise ValueError("visibility needs the camera's segmentation mask")
     area = projected_area(frame, corners_world, ego_to_world)
     if area.is_empty or area.area < 1.0:
         return 0.0
+    area = shapely.affinity.scale(area, *frame.drawn_per_camera_px, origin=(0, 0))
+    height, width = frame.mask.shape
     x0, y0 = (int(np.floor(v)) for v in area.bounds[:2])
-    x1 = min(int(np.ceil(area.bounds[2])), frame.camera.width)
-    y1 = min(int(np.ceil(area.bounds[3])), frame.camera.height)
+    x1 = min(int(np.ceil(area.bounds[2])), width)
+    y1 = min(int(np.ceil(area.bounds[3])), height)
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     outline = (np.asarray(area.exterior.coords) - (x0, y0)) * 16  # 4 bits of sub-pixel precision
     cv2.fillPoly(inside, [np.round(outline).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)

@@ -15,10 +15,19 @@ from drivee2e_data.sim.world import World
 
 @dataclass(frozen=True)
 class CameraFrame:
+    """A camera's view as the renderer drew it: at the camera's size, or smaller where the
+    renderer draws smaller (EGL: at most 1024x768, `World.drawn_size`); `with_conditions`
+    gives the RGB at the camera's size."""
+
     camera: Camera
-    rgb: NDArray[np.uint8]  # (H, W, 3)
-    depth_m: NDArray[np.float32]  # (H, W)
-    mask: NDArray[np.int32] | None  # (H, W) pybullet body id per pixel, -1 where none
+    rgb: NDArray[np.uint8]  # (h, w, 3) as drawn
+    depth_m: NDArray[np.float32]  # (h, w)
+    mask: NDArray[np.int32] | None  # (h, w) pybullet body id per pixel, -1 where none
+
+    @property
+    def drawn_per_camera_px(self) -> tuple[float, float]:
+        """Drawn pixels per camera pixel along x and y."""
+        return self.rgb.shape[1] / self.camera.width, self.rgb.shape[0] / self.camera.height
 
 
 def camera_to_world(camera: Camera, ego_to_world: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -33,18 +42,22 @@ def render(
     eye = pose[:3, 3]
     target = eye + 10.0 * pose[:3, 2]
     image = world.render(
-        eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask
-    )
+        eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask,
+        native=True,
+    )  # fmt: skip
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation)
 
 
 def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.uint8]:
-    """The view's RGB under the clip's weather and light, its noise seeded by scenario, frame and
-    camera (the same image however often the frame is made); headlights on the front camera."""
+    """The view's RGB at the camera's size under the clip's weather and light, its noise seeded
+    by scenario, frame and camera (the same image however often the frame is made); headlights
+    on the front camera. The weather is applied as drawn, before resizing (fewer pixels)."""
+    import cv2
+
     scenario = world.scenario
     seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{view.camera.name}".encode())
-    return post_process(
+    rgb = post_process(
         view.rgb,
         view.depth_m,
         scenario.conditions,
@@ -52,6 +65,10 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
         seed,
         headlights=view.camera.name == "CAM_FRONT",
     )
+    size = (view.camera.width, view.camera.height)
+    if rgb.shape[1::-1] == size:
+        return rgb
+    return cv2.resize(rgb, size, interpolation=cv2.INTER_LINEAR)
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:

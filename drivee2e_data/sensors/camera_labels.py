@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data.arrays import nearest_indices
 from drivee2e_data.scenario import AgentClass
 
 LABEL_KINDS = ("depth", "semantic", "instance")
@@ -85,14 +86,20 @@ def label_images(
     tables: LabelTables,
     scale: int,
     kinds: tuple[str, ...] = LABEL_KINDS,
+    size: tuple[int, int] | None = None,
 ) -> dict[str, NDArray]:
-    """The label images of one rendered view at 1/`scale` resolution, by kind."""
+    """The label images of one rendered view at 1/`scale` of the camera's `size` (width,
+    height; None: the arrays' own), by kind: each label pixel takes the drawn pixel under the
+    centre of the camera pixel it stands for."""
     offset = scale // 2
-    mask = body_mask[offset::scale, offset::scale]
+    width, height = size or body_mask.shape[::-1]
+    rows = nearest_indices(height, body_mask.shape[0])[offset::scale, None]
+    columns = nearest_indices(width, body_mask.shape[1])[offset::scale]
+    mask = body_mask[rows, columns]
     lookup = np.clip(mask + 1, 0, len(tables.semantic) - 1)
     result: dict[str, NDArray] = {}
     if "depth" in kinds:
-        depth = depth_m[offset::scale, offset::scale]
+        depth = depth_m[rows, columns]
         millimetres = np.rint(depth * 1000.0)
         millimetres[(mask < 0) | (millimetres > MAX_DEPTH_MM)] = 0
         result["depth"] = millimetres.astype(np.uint16)

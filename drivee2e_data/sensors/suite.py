@@ -133,7 +133,7 @@ class SensorSuite:
                 with _timed(seconds, "labels"):
                     images = camera_labels.label_images(
                         view.depth_m, view.mask, self.label_tables, self.options.label_scale,
-                        self.options.camera_labels,
+                        self.options.camera_labels, (camera.width, camera.height),
                     )  # fmt: skip
                     labels[camera.name] = {
                         kind: camera_labels.encode_png(image) for kind, image in images.items()
