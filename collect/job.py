@@ -37,6 +37,7 @@ class CollectOptions:
     camera_labels: tuple[str, ...] = ()  # dense labels per camera: depth, semantic, instance
     label_scale: int = DEFAULT_LABEL_SCALE  # labels at 1/scale of the camera resolution
     lidar: str = "raycast"  # "raycast" (the reference) or "depth" (read from depth images)
+    visibility: str = "depth"  # boxes' visible share from "depth" images or the body "mask"
 
     def suite(self) -> SuiteOptions:
         return SuiteOptions(
@@ -46,6 +47,7 @@ class CollectOptions:
             camera_labels=self.camera_labels,
             label_scale=self.label_scale,
             lidar=self.lidar,
+            visibility=self.visibility,
         )
 
 

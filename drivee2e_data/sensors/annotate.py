@@ -1,5 +1,6 @@
 """Per-frame box annotations: 3D corners, the share of a box's projected area a camera sees
-(from the segmentation mask, binned as nuScenes does), and sensor points inside a box.
+(from the segmentation mask or the depth image, binned as nuScenes does), and sensor points
+inside a box.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import shapely.affinity
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import Track
-from drivee2e_data.sensors.camera import CameraFrame, camera_to_world
+from drivee2e_data.sensors.camera import FAR_M, NEAR_M, CameraFrame, camera_to_world
 
 # nuScenes visibility levels: 1: 0-40%, 2: 40-60%, 3: 60-80%, 4: 80-100% of the box seen
 VISIBILITY_BINS = (0.4, 0.6, 0.8)
@@ -63,26 +64,86 @@ def visible_share(
     ego_to_world: NDArray[np.float64],
 ) -> float:
     """Share of the box's projected area (in the image) whose pixels show the body itself,
-    counted in the mask as drawn."""
-    if frame.mask is None:
-        raise ValueError("visibility needs the camera's segmentation mask")
+    counted in the view as drawn: by the body mask where the view has one, else by depth (a
+    pixel shows the box when the point its depth puts in the world lies inside the box; see
+    `DEPTH_MARGIN_M`), which spares the renderer its mask pass."""
+    covered = _covered_pixels(frame, corners_world, ego_to_world)
+    if covered is None:
+        return 0.0
+    rows, columns = covered
+    if frame.mask is not None:
+        return float((frame.mask[rows, columns] == body).sum() / len(rows))
+    scale_x, scale_y = frame.drawn_per_camera_px
+    intrinsic = frame.camera.intrinsic
+    depth = frame.depth_m[rows, columns].astype(np.float64)
+    points_camera = np.column_stack(
+        [
+            ((columns + 0.5) / scale_x - intrinsic[0, 2]) / intrinsic[0, 0] * depth,
+            ((rows + 0.5) / scale_y - intrinsic[1, 2]) / intrinsic[1, 1] * depth,
+            depth,
+        ]
+    )
+    to_world = camera_to_world(frame.camera, ego_to_world)
+    points_world = points_camera @ to_world[:3, :3].T + to_world[:3, 3]
+    margin = DEPTH_MARGIN_M + depth_step_m(depth, NEAR_M, FAR_M)
+    return float(_inside_box(points_world, corners_world, margin).sum() / len(rows))
+
+
+# a surface point belongs to a box within this much (plus the depth buffer's step there) of its
+# sides and top, and at least ABOVE_BOTTOM_M above its bottom face (the road is not the box)
+DEPTH_MARGIN_M = 0.05
+ABOVE_BOTTOM_M = 0.02
+DEPTH_BITS = 16  # pybullet asks EGL for 8 bits at least; errors seen on llvmpipe fit 16
+
+
+def depth_step_m(depth_m: NDArray[np.float64], near_m: float, far_m: float) -> NDArray[np.float64]:
+    """The depth buffer's quantum at each depth: a 16-bit buffer, stepping evenly in 1/depth."""
+    return depth_m**2 * (far_m - near_m) / (near_m * far_m * (2**DEPTH_BITS - 1))
+
+
+def _covered_pixels(
+    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
+    """Rows and columns (of the view as drawn) inside the box's projection; None if none."""
     area = projected_area(frame, corners_world, ego_to_world)
     if area.is_empty or area.area < 1.0:
-        return 0.0
+        return None
     area = shapely.affinity.scale(area, *frame.drawn_per_camera_px, origin=(0, 0))
-    height, width = frame.mask.shape
+    height, width = frame.depth_m.shape
     x0, y0 = (int(np.floor(v)) for v in area.bounds[:2])
     x1 = min(int(np.ceil(area.bounds[2])), width)
     y1 = min(int(np.ceil(area.bounds[3])), height)
     if x1 <= x0 or y1 <= y0:
-        return 0.0
+        return None
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     outline = (np.asarray(area.exterior.coords) - (x0, y0)) * 16  # 4 bits of sub-pixel precision
     cv2.fillPoly(inside, [np.round(outline).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
-    covered = inside.astype(bool)
-    if not covered.any():
-        return 0.0
-    return float((frame.mask[y0:y1, x0:x1][covered] == body).sum() / covered.sum())
+    rows, columns = np.nonzero(inside)
+    if len(rows) == 0:
+        return None
+    return rows + y0, columns + x0
+
+
+def _inside_box(
+    points_world: NDArray[np.float64],
+    corners_world: NDArray[np.float64],
+    margin_m: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Which points `(N, 3)` lie in the box (corners bottom face first), each within its
+    `margin_m` `(N,)` out from the sides and top, and `ABOVE_BOTTOM_M` in from the bottom."""
+    origin = corners_world[2]
+    axes = np.stack(
+        [
+            corners_world[1] - corners_world[2],
+            corners_world[3] - corners_world[2],
+            corners_world[6] - corners_world[2],
+        ]
+    )
+    lengths = np.linalg.norm(axes, axis=1)
+    metres = (points_world - origin) @ (axes / lengths[:, None]).T
+    margin = margin_m[:, None]
+    low = np.column_stack([-margin_m, -margin_m, np.full(len(margin_m), ABOVE_BOTTOM_M)])
+    return np.all((metres >= low) & (metres <= lengths + margin), axis=1)
 
 
 def visibility_level(share: float) -> int:

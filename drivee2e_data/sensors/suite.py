@@ -30,6 +30,9 @@ ANNOTATION_RANGE_M = 100.0  # boxes farther from the ego than this are not annot
 
 
 LIDAR_METHODS = ("raycast", "depth")
+# where a box's visible share comes from: the depth image every camera renders anyway, or the
+# body mask, a second render pass per camera (the reference; camera labels need it anyway)
+VISIBILITY_SOURCES = ("depth", "mask")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,7 @@ class SuiteOptions:
     camera_labels: tuple[str, ...] = ()  # some of camera_labels.LABEL_KINDS
     label_scale: int = DEFAULT_LABEL_SCALE
     lidar: str = "raycast"  # one of LIDAR_METHODS: ray casting, or read from depth images
+    visibility: str = "depth"  # one of VISIBILITY_SOURCES
 
 
 @dataclass(frozen=True)
@@ -96,6 +100,11 @@ class SensorSuite:
             raise ValueError(
                 f"lidar {self.options.lidar!r}: expected one of {', '.join(LIDAR_METHODS)}"
             )
+        if self.options.visibility not in VISIBILITY_SOURCES:
+            raise ValueError(
+                f"visibility {self.options.visibility!r}: expected one of "
+                f"{', '.join(VISIBILITY_SOURCES)}"
+            )
         unknown = set(self.options.camera_labels) - set(camera_labels.LABEL_KINDS)
         if unknown:
             raise ValueError(
@@ -121,10 +130,11 @@ class SensorSuite:
         world.set_time(frame)
         views: list[CameraFrame] = []
         jpeg: dict[str, bytes] = {}
+        mask = self.label_tables is not None or self.options.visibility == "mask"
         labels: dict[str, dict[str, bytes]] = {}
         for camera in self.rig.cameras:
             with _timed(seconds, "render"):
-                view = render(world, camera, ego_to_world, mask=True)
+                view = render(world, camera, ego_to_world, mask=mask)
             with _timed(seconds, "post_process"):
                 rgb = with_conditions(world, view, frame)
             with _timed(seconds, "jpeg"):
