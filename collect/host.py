@@ -2,9 +2,9 @@
 
 Each worker renders on one core (llvmpipe, or the CPU side of a GPU renderer) and peaks under
 1 GiB (docs/benchmarks.md), so the workers are the usable cores, no more than the clips and no
-more than the memory allows at `WORKER_MEMORY_GIB` each. Where an NVIDIA GPU is present, the
-LiDAR is read from depth images (3.45x faster a sweep there); on a CPU renderer ray casting is
-as fast and stays the default.
+more than the memory allows at `WORKER_MEMORY_GIB` each. Where pybullet's EGL renderer loads
+(a GPU, or Mesa's llvmpipe on the CPU), the LiDAR is read from depth images (1.8x faster a
+sweep than ray casting on llvmpipe, 3.45x on an H100 host); with TinyRenderer, ray casting.
 """
 
 from __future__ import annotations
@@ -23,11 +23,13 @@ class HostPlan:
     cores: int
     memory_gib: float
     gpu: bool
+    egl: bool
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
+        renderer = "EGL" if self.egl else "TinyRenderer"
         return (
-            f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device} -> "
+            f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
             f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
             f"{self.lidar} LiDAR"
         )
@@ -54,10 +56,29 @@ def plan(
     cores: int | None = None,
     memory: float | None = None,
     gpu: bool | None = None,
+    egl: bool | None = None,
+    renderer: str = "auto",
 ) -> HostPlan:
-    """Workers and LiDAR for collecting `clips` clips here (the measurements may be given)."""
+    """Workers and LiDAR for collecting `clips` clips here with `renderer` (the measurements may
+    be given; `egl` None: whether pybullet's EGL plugin loads, tried once)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
+    if renderer == "tiny":
+        egl = False
+    elif egl is None:
+        egl = egl_loads()
     workers = max(1, min(cores, max(clips, 1), int(memory // WORKER_MEMORY_GIB)))
-    return HostPlan(workers, "depth" if gpu else "raycast", cores, memory, gpu)
+    return HostPlan(workers, "depth" if egl else "raycast", cores, memory, gpu, egl)
+
+
+def egl_loads() -> bool:
+    """Whether pybullet's EGL renderer loads in this process (a client made and dropped)."""
+    import pybullet
+
+    from drivee2e_data.sim.world import connect, quiet_native_output
+
+    client, chosen = connect("auto")
+    with quiet_native_output():
+        pybullet.disconnect(client)
+    return chosen == "egl"
