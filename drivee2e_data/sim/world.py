@@ -259,9 +259,22 @@ class World:
         """A `width` x `height` image from a pinhole camera at `eye_m` looking at `target_m`, `up`
         pointing up in the image (world z unless given). With `native`, the image as drawn: with
         EGL, at most `EGL_WINDOW_PX` (`drawn_size`), to be resized by the caller."""
+        if not self.can_render:
+            raise DriveE2EError(
+                "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
+                "was made in this process after it, and pybullet's EGL plugin draws only in the "
+                "newest one's context; close this World and make a new one"
+            )
+        view = self.p.computeViewMatrix(
+            [float(v) for v in eye_m],
+            [float(v) for v in target_m],
+            [float(v) for v in up],
+            physicsClientId=self.client,
+        )
+        projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height, near_m,
+                                                       far_m, physicsClientId=self.client)  # fmt: skip
         drawn_width, drawn_height = self.drawn_size(width, height)
-        image = self._draw(eye_m, target_m, drawn_width, drawn_height, vertical_fov_deg, width / height,
-                           far_m, segmentation, near_m, up)  # fmt: skip
+        image = self._draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m)
         if native or (drawn_width, drawn_height) == (width, height):
             return image
         return image.resized(width, height)
@@ -279,32 +292,15 @@ class World:
 
     def _draw(
         self,
-        eye_m: NDArray[np.float64],
-        target_m: NDArray[np.float64],
+        view: list[float],
+        projection: list[float],
         width: int,
         height: int,
-        vertical_fov_deg: float,
-        aspect: float,
-        far_m: float,
         segmentation: bool,
         near_m: float,
-        up: NDArray[np.float64] | tuple[float, float, float],
+        far_m: float,
     ) -> Image:
-        if not self.can_render:
-            raise DriveE2EError(
-                "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
-                "was made in this process after it, and pybullet's EGL plugin draws only in the "
-                "newest one's context; close this World and make a new one"
-            )
-        near = near_m
-        view = self.p.computeViewMatrix(
-            [float(v) for v in eye_m],
-            [float(v) for v in target_m],
-            [float(v) for v in up],
-            physicsClientId=self.client,
-        )
-        projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, aspect, near, far_m,
-                                                       physicsClientId=self.client)  # fmt: skip
+        """The image pybullet draws with these matrices at `width` x `height`, depth in metres."""
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
@@ -326,7 +322,7 @@ class World:
             )
         rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
         buffer = np.asarray(depth, dtype=np.float32).reshape(height, width)
-        depth_m = (far_m * near / (far_m - (far_m - near) * buffer)).astype(np.float32)
+        depth_m = (far_m * near_m / (far_m - (far_m - near_m) * buffer)).astype(np.float32)
         mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
         return Image(rgb, depth_m, mask)
 
