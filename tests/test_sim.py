@@ -290,3 +290,15 @@ def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
     assert np.array_equal(full.segmentation, native.segmentation[rows[:, None], columns])
     assert np.array_equal(full.depth_m, native.depth_m[rows[:, None], columns])
     assert np.abs(full.rgb.astype(int).mean((0, 1)) - native.rgb.mean((0, 1))).max() < 2.0
+
+
+def test_sensor_noise_is_seeded_standard_normal_and_differs_between_seeds():
+    from drivee2e_data.sim.conditions import sensor_noise
+
+    first = sensor_noise((768, 1024, 3), np.random.default_rng(7))
+    again = sensor_noise((768, 1024, 3), np.random.default_rng(7))
+    other = sensor_noise((768, 1024, 3), np.random.default_rng(8))
+    assert np.array_equal(first, again) and not np.array_equal(first, other)
+    assert abs(first.mean()) < 0.01 and abs(first.std() - 1.0) < 0.01
+    big = sensor_noise((2000, 2000, 3), np.random.default_rng(7))  # beyond half the pool
+    assert big.shape == (2000, 2000, 3) and abs(big.std() - 1.0) < 0.01

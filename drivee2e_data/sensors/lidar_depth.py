@@ -14,7 +14,9 @@ shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,7 +27,8 @@ from drivee2e_data.sim.twin import PaintRaster
 
 VIEWS = 6  # views around the LiDAR, each 360 / VIEWS degrees of azimuth wide
 OVERSAMPLE = 1.5  # pixels per azimuth step at the centre of a view
-NEAR_M = 0.3  # closer than this, nothing is seen (the roof-mounted LiDAR clears its own car)
+NEAR_M = 1.0  # nothing nearer is seen: the roof LiDAR clears its own car by more, and the
+# 16-bit depth buffer steps r^2 / (near * 65535) at range r: 11 cm at 85 m (37 cm with 0.3 m)
 
 
 def _view_geometry(lidar: Lidar) -> tuple[float, int, int, float]:
@@ -40,6 +43,55 @@ def _view_geometry(lidar: Lidar) -> tuple[float, int, int, float]:
     return focal, width, height, vertical_fov
 
 
+@dataclass(frozen=True)
+class _Samples:
+    """Where one view's beams fall in its image: the four pixels around each and their
+    bilinear weights, fixed by the beam pattern (computed once per LiDAR geometry)."""
+
+    beams: NDArray[np.intp]  # indices into the sweep's beams
+    corners: tuple[tuple[NDArray[np.intp], NDArray[np.intp]], ...]  # 4 x (rows, columns)
+    weights: NDArray[np.float64]  # (4, B)
+    nearest: NDArray[np.intp]  # (B,) which corner is nearest
+    along: NDArray[np.float64]  # (B,) the beam's share of the view axis
+
+
+@dataclass(frozen=True)
+class _Layout:
+    directions: NDArray[np.float64]  # (R, 3) LiDAR frame
+    ring: NDArray[np.uint8]
+    width: int
+    height: int
+    vertical_fov_deg: float
+    views: tuple[_Samples, ...]
+
+
+@functools.lru_cache(maxsize=4)
+def _layout(channels: int, upper_deg: float, lower_deg: float, step_deg: float) -> _Layout:
+    lidar = Lidar("layout", np.eye(4), channels, 0.0, upper_deg, lower_deg, step_deg)
+    directions, ring = beam_directions(lidar)
+    focal, width, height, vertical_fov = _view_geometry(lidar)
+    azimuth = np.arctan2(directions[:, 1], directions[:, 0])
+    elevation = np.arcsin(np.clip(directions[:, 2], -1.0, 1.0))
+    view_of = np.floor((azimuth + math.pi / VIEWS) / (2 * math.pi / VIEWS)).astype(int) % VIEWS
+    views = []
+    for view in range(VIEWS):
+        beams = np.flatnonzero(view_of == view)
+        relative = azimuth[beams] - view * 2 * math.pi / VIEWS
+        relative = (relative + math.pi) % (2 * math.pi) - math.pi
+        # image coordinates of each beam, pixel centres at integers; x right, row 0 at the top
+        column = width / 2 - 0.5 - focal * np.tan(relative)
+        row = height / 2 - 0.5 - focal * np.tan(elevation[beams]) / np.cos(relative)
+        left = np.clip(np.floor(column).astype(np.intp), 0, width - 2)
+        top = np.clip(np.floor(row).astype(np.intp), 0, height - 2)
+        dx = np.clip(column - left, 0.0, 1.0)
+        dy = np.clip(row - top, 0.0, 1.0)
+        corners = ((top, left), (top, left + 1), (top + 1, left), (top + 1, left + 1))
+        weights = np.stack([(1 - dx) * (1 - dy), dx * (1 - dy), (1 - dx) * dy, dx * dy])
+        along = np.cos(elevation[beams]) * np.cos(relative)
+        views.append(_Samples(beams, corners, weights, np.argmax(weights, axis=0), along))
+    return _Layout(directions, ring, width, height, vertical_fov, tuple(views))
+
+
 def depth_sweep(
     world, lidar: Lidar, sensor_to_world: NDArray[np.float64], paint: PaintRaster | None = None
 ) -> LidarSweep:
@@ -47,41 +99,31 @@ def depth_sweep(
     beams at silhouettes (where neighbouring pixels show different bodies, about 4% of them)
     are cast as rays instead, so edges fall exactly where ray casting puts them. `paint` gives
     road hits their markings' intensity, as in `lidar.sweep`."""
-    directions, ring = beam_directions(lidar)
-    focal, width, height, vertical_fov = _view_geometry(lidar)
-    azimuth = np.arctan2(directions[:, 1], directions[:, 0])
-    elevation = np.arcsin(np.clip(directions[:, 2], -1.0, 1.0))
-    view_of = np.floor((azimuth + math.pi / VIEWS) / (2 * math.pi / VIEWS)).astype(int) % VIEWS
+    layout = _layout(lidar.channels, lidar.upper_deg, lidar.lower_deg, lidar.azimuth_step_deg)
+    directions = layout.directions
     origin = sensor_to_world[:3, 3]
     rotation = sensor_to_world[:3, :3]
     distance = np.full(len(directions), np.nan)
     body = np.full(len(directions), -1, np.int64)
     edge = np.zeros(len(directions), dtype=bool)
-    for view in range(VIEWS):
-        beams = np.flatnonzero(view_of == view)
+    for view, samples in enumerate(layout.views):
         centre_azimuth = view * 2 * math.pi / VIEWS
         forward = rotation @ np.array([math.cos(centre_azimuth), math.sin(centre_azimuth), 0.0])
         image = world.render(
             origin,
             origin + forward,
-            width,
-            height,
-            vertical_fov,
+            layout.width,
+            layout.height,
+            layout.vertical_fov_deg,
             far_m=lidar.range_m,
             segmentation=True,
             near_m=NEAR_M,
             up=rotation[:, 2],
         )
-        relative = azimuth[beams] - centre_azimuth
-        relative = (relative + math.pi) % (2 * math.pi) - math.pi
-        # image coordinates of each beam, pixel centres at integers; x right, row 0 at the top
-        column = width / 2 - 0.5 - focal * np.tan(relative)
-        row = height / 2 - 0.5 - focal * np.tan(elevation[beams]) / np.cos(relative)
-        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, column, row)
-        along = np.cos(elevation[beams]) * np.cos(relative)  # the beam's share of the view axis
-        distance[beams] = depth / along
-        body[beams] = hit_body
-        edge[beams] = at_edge
+        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples)
+        distance[samples.beams] = depth / samples.along
+        body[samples.beams] = hit_body
+        edge[samples.beams] = at_edge
     world_directions = directions @ rotation.T
     edges = np.flatnonzero(edge)
     body[edges], distance[edges] = cast(
@@ -93,31 +135,23 @@ def depth_sweep(
     return LidarSweep(
         points_m=(directions[hit] * distance[hit, None]).astype(np.float32),
         intensity=intensities(world.twin.segmentation, hit_body, hit_xy, paint),
-        ring=ring[hit],
+        ring=layout.ring[hit],
         body=hit_body,
     )
 
 
 def _sample(
-    depth_m: NDArray[np.float32], mask: NDArray[np.int32], column: NDArray, row: NDArray
+    depth_m: NDArray[np.float32], mask: NDArray[np.int32], samples: _Samples
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
     """Depth and body along each beam, and whether it lies at an edge: inverse depth
     interpolated bilinearly where the four neighbouring pixels show one body, the nearest
     pixel's depth otherwise (an edge)."""
-    height, width = depth_m.shape
     bodies = np.where(mask >= 0, mask & ((1 << 24) - 1), -1)
-    left = np.clip(np.floor(column).astype(int), 0, width - 2)
-    top = np.clip(np.floor(row).astype(int), 0, height - 2)
-    dx = np.clip(column - left, 0.0, 1.0)
-    dy = np.clip(row - top, 0.0, 1.0)
-    corners = [(top, left), (top, left + 1), (top + 1, left), (top + 1, left + 1)]
-    weights = [(1 - dx) * (1 - dy), dx * (1 - dy), (1 - dx) * dy, dx * dy]
-    corner_bodies = np.stack([bodies[r, c] for r, c in corners])
-    corner_depths = np.stack([depth_m[r, c] for r, c in corners]).astype(np.float64)
-    same = (corner_bodies == corner_bodies[0]).all(axis=0) & (corner_bodies[0] >= 0)
-    inverse = sum(w / d for w, d in zip(weights, corner_depths, strict=True))
-    nearest = np.argmax(np.stack(weights), axis=0)
-    picked = np.arange(len(column))
-    depth = np.where(same, 1.0 / inverse, corner_depths[nearest, picked])
-    edge = ~(corner_bodies == corner_bodies[0]).all(axis=0)
-    return depth, corner_bodies[nearest, picked].astype(np.int64), edge
+    corner_bodies = np.stack([bodies[r, c] for r, c in samples.corners])
+    corner_depths = np.stack([depth_m[r, c] for r, c in samples.corners]).astype(np.float64)
+    one_body = (corner_bodies == corner_bodies[0]).all(axis=0)
+    same = one_body & (corner_bodies[0] >= 0)
+    inverse = (samples.weights / corner_depths).sum(axis=0)
+    picked = np.arange(len(samples.beams))
+    depth = np.where(same, 1.0 / inverse, corner_depths[samples.nearest, picked])
+    return depth, corner_bodies[samples.nearest, picked].astype(np.int64), ~one_body
