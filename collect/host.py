@@ -13,6 +13,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivee2e_data.sim.world import egl_available
+
 WORKER_MEMORY_GIB = 1.5  # a worker's peak (0.7-0.8 GiB measured) with room to spare
 
 
@@ -67,18 +69,6 @@ def plan(
     if renderer == "tiny":
         egl = False
     elif egl is None:
-        egl = egl_loads()
+        egl = egl_available()
     workers = max(1, min(cores, max(clips, 1), int(memory // WORKER_MEMORY_GIB)))
     return HostPlan(workers, "depth" if egl else "raycast", cores, memory, gpu, egl)
-
-
-def egl_loads() -> bool:
-    """Whether pybullet's EGL renderer loads in this process (a client made and dropped)."""
-    import pybullet
-
-    from drivee2e_data.sim.world import connect, quiet_native_output
-
-    client, chosen = connect("auto")
-    with quiet_native_output():
-        pybullet.disconnect(client)
-    return chosen == "egl"

@@ -456,10 +456,13 @@ def _size(text: str) -> tuple[int, int]:
 
 def _collect(args: argparse.Namespace) -> int:
     clips = len(args.only) if args.only else len(store.scenario_ids(args.data))
-    host = collect_host.plan(clips, renderer=args.renderer)
-    if clips and (args.workers == "auto" or args.lidar is None):
-        print(host.describe(), file=sys.stderr)
-    workers = host.workers if args.workers == "auto" else args.workers
+    workers, lidar = args.workers, args.lidar
+    if workers == "auto" or lidar is None:  # the host decides (an EGL probe, once)
+        host = collect_host.plan(clips, renderer=args.renderer)
+        if clips:
+            print(host.describe(), file=sys.stderr)
+        workers = host.workers if workers == "auto" else workers
+        lidar = lidar or host.lidar
     options = CollectOptions(
         renderer=args.renderer,
         cameras=tuple(args.cameras) if args.cameras else None,
@@ -468,7 +471,7 @@ def _collect(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         camera_labels=args.camera_labels,
         label_scale=args.label_scale,
-        lidar=args.lidar or host.lidar,
+        lidar=lidar,
     )
     bars: list[tqdm] = []
 

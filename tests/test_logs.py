@@ -210,8 +210,9 @@ def _pose(transform) -> np.ndarray:  # type: ignore[no-untyped-def]
 
 def test_tf_puts_lidar_points_inside_the_boxes_that_count_them(collected_root: Path):
     from drivee2e_data.logs.messages import LIDAR_DTYPE
-    from drivee2e_data.sensors.annotate import depth_step_m
     from drivee2e_data.sensors.lidar_depth import NEAR_M
+    from drivee2e_data.sensors.rig import default_rig
+    from drivee2e_data.sim.world import depth_step_m
 
     with LogReader(_log(collected_root)) as log:
         messages = log.frame(12, [topics.TF, topics.LIDAR, topics.OBJECTS])
@@ -227,7 +228,8 @@ def test_tf_puts_lidar_points_inside_the_boxes_that_count_them(collected_root: P
     # depth buffer's step at each point's range for a LiDAR read from depth images
     slack = np.full(len(xyz), 0.002)
     if lidar_method == "depth":
-        slack += depth_step_m(np.linalg.norm(xyz, axis=1), NEAR_M, 85.0)
+        far_m = default_rig().lidar.range_m  # the depth views' far plane
+        slack += depth_step_m(np.linalg.norm(xyz, axis=1), NEAR_M, far_m)
     counted = [o for o in messages[topics.OBJECTS].objects if o.num_lidar_points > 0]
     assert len(counted) >= 3
     for box in counted:

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.scenario import Track
 from drivee2e_data.sensors.camera import FAR_M, NEAR_M, CameraFrame, camera_to_world
+from drivee2e_data.sim.world import depth_step_m
 
 # nuScenes visibility levels: 1: 0-40%, 2: 40-60%, 3: 60-80%, 4: 80-100% of the box seen
 VISIBILITY_BINS = (0.4, 0.6, 0.8)
@@ -97,12 +98,6 @@ def visible_share(
 DEPTH_MARGIN_M = 0.05
 ABOVE_BOTTOM_M = 0.02
 DEPTH_SAMPLES = 4000  # pixels per box at most for the share by depth
-DEPTH_BITS = 16  # pybullet asks EGL for 8 bits at least; errors seen on llvmpipe fit 16
-
-
-def depth_step_m(depth_m: NDArray[np.float64], near_m: float, far_m: float) -> NDArray[np.float64]:
-    """The depth buffer's quantum at each depth: a 16-bit buffer, stepping evenly in 1/depth."""
-    return depth_m**2 * (far_m - near_m) / (near_m * far_m * (2**DEPTH_BITS - 1))
 
 
 def _covered_pixels(

@@ -44,6 +44,7 @@ _logged_choice: set[str] = set()
 # current and never makes an older one current again, so once a newer client has come (and
 # gone), an older client's renders read back another context's memory: garbage, not an error.
 _egl_clients = 0
+DEPTH_BITS = 16  # pybullet asks EGL for 8 bits at least; depth errors seen on llvmpipe fit 16
 
 
 @dataclass(frozen=True)
@@ -325,6 +326,25 @@ class World:
         depth_m = (far_m * near_m / (far_m - (far_m - near_m) * buffer)).astype(np.float32)
         mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
         return Image(rgb, depth_m, mask)
+
+
+def depth_step_m(depth_m: NDArray[np.float64], near_m: float, far_m: float) -> NDArray[np.float64]:
+    """The depth buffer's step at each depth `depth_m` (m) for a view with these near and far
+    planes: a `DEPTH_BITS` buffer steps evenly in 1 / depth, so by depth^2 / near roughly."""
+    return depth_m**2 * (far_m - near_m) / (near_m * far_m * (2**DEPTH_BITS - 1))
+
+
+def egl_available() -> bool:
+    """Whether pybullet's EGL renderer loads in this process: known once a client has loaded it,
+    else tried with a client made and dropped (which supersedes any older EGL world)."""
+    if _egl_clients:
+        return True
+    client, chosen = connect("auto")  # imports pybullet
+    import pybullet
+
+    with quiet_native_output():
+        pybullet.disconnect(client)
+    return chosen == "egl"
 
 
 def world_for(
