@@ -20,6 +20,7 @@ from pathlib import Path
 from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.writer import LogWriter
+from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
 from drivee2e_data.sensors.suite import STAGES, SensorSuite, SuiteOptions
 from drivee2e_data.sim.world import World, world_for
@@ -38,6 +39,7 @@ class CollectOptions:
     label_scale: int = DEFAULT_LABEL_SCALE  # labels at 1/scale of the camera resolution
     lidar: str = "raycast"  # "raycast" (the reference) or "depth" (read from depth images)
     visibility: str = "depth"  # boxes' visible share from "depth" images or the body "mask"
+    post_process: str = "cpu"  # camera weather, resize and JPEG on the "cpu" or with "cuda"
 
     def suite(self) -> SuiteOptions:
         return SuiteOptions(
@@ -48,6 +50,7 @@ class CollectOptions:
             label_scale=self.label_scale,
             lidar=self.lidar,
             visibility=self.visibility,
+            post_process=self.post_process,
         )
 
 
@@ -77,8 +80,13 @@ def _close_world() -> None:
         _world.close()
 
 
-def _world_for(root: Path, scenario_id: str, renderer: str) -> World:
+def _world_for(root: Path, scenario_id: str, renderer: str, post_process: str = "cpu") -> World:
     global _world
+    if post_process == "cuda" and not camera_gpu.cuda_started():
+        if _world is not None:  # CUDA must start before any EGL context (camera_gpu.prepare)
+            _world.close()
+            _world = None
+        camera_gpu.prepare(post_process)
     scenario = store.read_scenario(root, scenario_id)
     _world = world_for(_world, scenario, lambda map_id: store.read_map(root, map_id), renderer)
     return _world
@@ -114,7 +122,7 @@ def collect_clip(
     stage_seconds = dict.fromkeys((*STAGES, "write"), 0.0)
     result = JobResult(scenario_id, "failed", stage_seconds=stage_seconds)
     try:
-        world = _world_for(Path(root), scenario_id, options.renderer)
+        world = _world_for(Path(root), scenario_id, options.renderer, options.post_process)
         result.renderer = world.renderer
         suite = SensorSuite(world, options.suite())
         scenario = world.scenario
@@ -126,6 +134,7 @@ def collect_clip(
             "jpeg_quality": str(options.jpeg_quality),
             "cameras": ",".join(c.name for c in suite.rig.cameras),
             "lidar": options.lidar,
+            "post_process": options.post_process,
         }
         labels = None
         if options.camera_labels:

@@ -152,7 +152,8 @@ _frames_done: multiprocessing.Queue | None = None
 
 # Mesa's llvmpipe renders with a thread per core; with a worker per core the threads only fight
 # (measured: 1.43 -> 1.56 frames/s with 2 workers on 2 cores), so each worker renders on one.
-WORKER_ENVIRONMENT = {"LP_NUM_THREADS": "1"}
+# OpenCV's and torch's thread pools likewise: a pool per worker, each as large as the host.
+WORKER_ENVIRONMENT = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
 def _init_worker(frames_done: multiprocessing.Queue) -> None:
@@ -160,6 +161,9 @@ def _init_worker(frames_done: multiprocessing.Queue) -> None:
     _frames_done = frames_done
     for name, value in WORKER_ENVIRONMENT.items():
         os.environ.setdefault(name, value)
+    import cv2  # torch, where the GPU post-processing imports it, reads OMP_NUM_THREADS
+
+    cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
 
 

@@ -30,6 +30,7 @@ from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.metrics.openloop import CONVENTIONS
 from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
+from drivee2e_data.sensors.camera_gpu import POST_PROCESS_DEVICES
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, LABEL_KINDS
 from drivee2e_data.sensors.suite import LIDAR_METHODS
 from drivee2e_data.sim.world import RENDERERS
@@ -197,6 +198,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="LiDAR by ray casting (the reference) or read from depth images rendered at the "
         "LiDAR (agrees with ray casting; 1.8x faster on llvmpipe, 3.45x on a GPU); default: "
         "depth where pybullet's EGL renderer loads, else raycast",
+    )  # fmt: skip
+    collect.add_argument(
+        "--post-process", choices=POST_PROCESS_DEVICES, default=None,
+        help="where camera images get their weather, resize and JPEG: cpu (OpenCV, the "
+        "reference) or cuda (torch and nvJPEG; images within 2 levels of the CPU's before "
+        "JPEG); default: cuda where torch sees a CUDA device, else cpu",
     )  # fmt: skip
 
     split = commands.add_parser(
@@ -456,13 +463,15 @@ def _size(text: str) -> tuple[int, int]:
 
 def _collect(args: argparse.Namespace) -> int:
     clips = len(args.only) if args.only else len(store.scenario_ids(args.data))
-    workers, lidar = args.workers, args.lidar
+    workers, lidar, post_process = args.workers, args.lidar, args.post_process
     if workers == "auto" or lidar is None:  # the host decides (an EGL probe, once)
         host = collect_host.plan(clips, renderer=args.renderer)
         if clips:
             print(host.describe(), file=sys.stderr)
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar
+        post_process = post_process or host.post_process
+    post_process = post_process or collect_host.post_process_device()
     options = CollectOptions(
         renderer=args.renderer,
         cameras=tuple(args.cameras) if args.cameras else None,
@@ -472,6 +481,7 @@ def _collect(args: argparse.Namespace) -> int:
         camera_labels=args.camera_labels,
         label_scale=args.label_scale,
         lidar=lidar,
+        post_process=post_process,
     )
     bars: list[tqdm] = []
 
@@ -495,7 +505,10 @@ def _collect(args: argparse.Namespace) -> int:
     )
     renderers = sorted({r.renderer for r in collected if r.renderer})
     if renderers:
-        print(f"renderer: {', '.join(renderers)}; LiDAR: {options.lidar}; workers: {workers}")
+        print(
+            f"renderer: {', '.join(renderers)}; LiDAR: {options.lidar}; camera post-processing: "
+            f"{options.post_process}; workers: {workers}"
+        )
     for result in failed:
         print(f"failed: {result.scenario_id}: {result.error}", file=sys.stderr)
     return 1 if failed else 0

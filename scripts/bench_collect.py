@@ -3,6 +3,7 @@ a naive reference measured in the same run.
 
     python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
         [--camera-labels depth,semantic,instance [--label-scale 4]] [--lidar depth]
+        [--post-process cuda]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
 written under max(2, --workers) scenario ids so that every worker has a job; each is collected for
@@ -13,8 +14,9 @@ per-stage time per frame, peak memory per worker and megabytes of log per frame.
 `--camera-labels`, the suite runs with the dense labels and again without them (the reference
 for their cost), and the slowdown and the log size of both are printed; with `--lidar depth`,
 the suite runs with the depth-image LiDAR and again with ray casting (the reference for it), and
-the speed-up and both LiDAR stage times are printed. `--reference-frames 0` skips the
-TinyRenderer reference.
+the speed-up and both LiDAR stage times are printed; with `--post-process cuda` (camera weather,
+resize and JPEG with torch and nvJPEG), the suite runs again with the defaults (ray-cast LiDAR,
+OpenCV post-processing) as the reference. `--reference-frames 0` skips the TinyRenderer reference.
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ def main() -> None:
     parser.add_argument("--camera-labels", default="", help="e.g. depth,semantic,instance")
     parser.add_argument("--label-scale", type=int, default=4)
     parser.add_argument("--lidar", choices=("raycast", "depth"), default="raycast")
+    parser.add_argument("--post-process", choices=("cpu", "cuda"), default="cpu")
     args = parser.parse_args()
     kinds = tuple(k for k in args.camera_labels.split(",") if k)
     # one job per worker at least (two at least), so every worker has a clip to collect
@@ -73,6 +76,7 @@ def main() -> None:
         camera_labels=kinds,
         label_scale=args.label_scale,
         lidar=args.lidar,
+        post_process=args.post_process,
     )
     with tempfile.TemporaryDirectory() as folder:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
@@ -90,7 +94,8 @@ def main() -> None:
         ours_start = time.perf_counter()
         ours = run(root, labelled, args.workers)
         ours_wall = time.perf_counter() - ours_start
-        if kinds or args.lidar != "raycast":  # the plain suite, in the same run
+        plain, plain_wall = None, float("nan")
+        if labelled != CollectOptions(max_frames=args.frames):  # the plain suite, same run
             plain_root = Path(folder) / "plain"
             store.write_map(plain_root, intersection_map)
             for suffix in suffixes:
@@ -110,6 +115,7 @@ def main() -> None:
                 CollectOptions(renderer="tiny", max_frames=args.reference_frames),
                 workers=1,
             )
+    plain_fps = plain.frames / plain_wall if plain is not None else float("nan")
     collected = ours.of("collected")
     ours_fps = ours.frames / ours_wall
     reference_fps = reference.frames_per_second if reference is not None else float("nan")
@@ -125,19 +131,20 @@ def main() -> None:
         )
         print(f"ratio     {ours_fps / reference_fps:6.2f}x")
     if kinds:
-        plain_fps = plain.frames / plain_wall
         print(
             f"without labels {plain_fps:6.2f} frames/s (reference), with {','.join(kinds)} at "
             f"1/{args.label_scale} resolution {ours_fps:6.2f}: {100 * (plain_fps / ours_fps - 1):.1f}% "
             f"slower; log {plain_mb:.2f} -> {sum(r.log_bytes for r in collected) / ours.frames / 1e6:.2f} MB per frame"
         )
-    if args.lidar != "raycast":
-        plain_fps = plain.frames / plain_wall
+    if args.lidar != "raycast" or args.post_process != "cpu":
+        plain_stages = stage_table(plain)
         print(
-            f"ray-cast LiDAR (reference) {plain_fps:6.2f} frames/s, LiDAR "
-            f"{stage_table(plain)['lidar']:.1f} ms a frame; depth-image LiDAR {ours_fps:6.2f} "
-            f"frames/s, LiDAR {stages['lidar']:.1f} ms: {ours_fps / plain_fps:.2f}x"
+            f"reference (ray-cast LiDAR, CPU post-processing) {plain_fps:6.2f} frames/s; "
+            f"{args.lidar} LiDAR, {args.post_process} post-processing {ours_fps:6.2f} frames/s: "
+            f"{ours_fps / plain_fps:.2f}x"
         )
+        for stage in ("lidar", "post_process", "jpeg"):
+            print(f"  {stage:<13} {plain_stages[stage]:7.1f} -> {stages[stage]:7.1f} ms a frame")
     print("per frame, ms (summed over workers):")
     for stage, milliseconds in stages.items():
         print(f"  {stage:<13} {milliseconds:7.1f}")
@@ -149,6 +156,7 @@ def main() -> None:
                 {
                     "frames_per_second": ours_fps,
                     "reference_frames_per_second": reference_fps,
+                    "plain_suite_frames_per_second": plain_fps,
                     "stages_ms_per_frame": stages,
                     "peak_gib_per_worker": peak_gib,
                     "mb_per_frame": mb_per_frame,

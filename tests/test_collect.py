@@ -261,9 +261,14 @@ def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsy
 def test_the_host_plan_fits_cores_clips_memory_and_gpu():
     from drivee2e_data.collect.host import plan
 
-    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, egl=True)
-    assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
+    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, egl=True, cuda=True)
+    assert (gpu_host.workers, gpu_host.lidar, gpu_host.post_process) == (16, "depth", "cuda")
     assert "EGL -> 16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
+    assert "camera post-processing on cuda" in gpu_host.describe()
+    assert (
+        plan(clips=8, cores=16, memory=125.0, gpu=True, egl=True, cuda=False).post_process == "cpu"
+    )
+    assert plan(clips=8, cores=2, memory=24.0, gpu=False, egl=True).post_process == "cpu"
     assert plan(clips=3, cores=16, memory=125.0, gpu=False, egl=True).workers == 3  # per clip
     assert plan(clips=100, cores=16, memory=6.0, gpu=False, egl=True).workers == 4  # 1.5 GiB each
     laptop = plan(clips=12, cores=2, memory=24.0, gpu=False, egl=True)

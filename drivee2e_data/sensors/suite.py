@@ -17,7 +17,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import SignalState
-from drivee2e_data.sensors import annotate, bev, camera_labels, lidar, lidar_depth, radar
+from drivee2e_data.sensors import (
+    annotate,
+    bev,
+    camera_gpu,
+    camera_labels,
+    lidar,
+    lidar_depth,
+    radar,
+)
 from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render, with_conditions
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
@@ -45,6 +53,9 @@ class SuiteOptions:
     label_scale: int = DEFAULT_LABEL_SCALE
     lidar: str = "raycast"  # one of LIDAR_METHODS: ray casting, or read from depth images
     visibility: str = "depth"  # one of VISIBILITY_SOURCES
+    # where camera images get their weather, resize and JPEG: "cpu" (OpenCV, the reference) or
+    # "cuda" (torch and nvJPEG, camera_gpu)
+    post_process: str = "cpu"
 
 
 @dataclass(frozen=True)
@@ -105,6 +116,7 @@ class SensorSuite:
                 f"visibility {self.options.visibility!r}: expected one of "
                 f"{', '.join(VISIBILITY_SOURCES)}"
             )
+        camera_gpu.check_device(self.options.post_process)
         unknown = set(self.options.camera_labels) - set(camera_labels.LABEL_KINDS)
         if unknown:
             raise ValueError(
@@ -132,13 +144,15 @@ class SensorSuite:
         jpeg: dict[str, bytes] = {}
         mask = self.label_tables is not None or self.options.visibility == "mask"
         labels: dict[str, dict[str, bytes]] = {}
+        on_cpu = self.options.post_process == "cpu"
         for camera in self.rig.cameras:
             with _timed(seconds, "render"):
                 view = render(world, camera, ego_to_world, mask=mask)
-            with _timed(seconds, "post_process"):
-                rgb = with_conditions(world, view, frame)
-            with _timed(seconds, "jpeg"):
-                jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
+            if on_cpu:
+                with _timed(seconds, "post_process"):
+                    rgb = with_conditions(world, view, frame)
+                with _timed(seconds, "jpeg"):
+                    jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
             if self.label_tables is not None and view.mask is not None:
                 with _timed(seconds, "labels"):
                     images = camera_labels.label_images(
@@ -149,6 +163,12 @@ class SensorSuite:
                         kind: camera_labels.encode_png(image) for kind, image in images.items()
                     }
             views.append(view)
+        if not on_cpu:  # the six images as one batch on the GPU
+            with _timed(seconds, "post_process"):
+                images = camera_gpu.finish(world, views, frame, self.options.post_process)
+            with _timed(seconds, "jpeg"):
+                encoded = camera_gpu.encode(images, self.options.jpeg_quality)
+            jpeg = {view.camera.name: data for view, data in zip(views, encoded, strict=True)}
         with _timed(seconds, "lidar"):
             lidar_to_world = ego_to_world @ self.rig.lidar.sensor_to_ego
             if self.options.lidar == "depth":

@@ -302,6 +302,8 @@ class World:
         far_m: float,
     ) -> Image:
         """The image pybullet draws with these matrices at `width` x `height`, depth in metres."""
+        import cv2
+
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
@@ -321,7 +323,9 @@ class World:
                 flags=flags,
                 physicsClientId=self.client,
             )
-        rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        # one contiguous RGB copy (OpenCV's is several times faster than numpy's strided one)
+        rgb = cv2.cvtColor(np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4),
+                           cv2.COLOR_RGBA2RGB)  # fmt: skip
         buffer = np.asarray(depth, dtype=np.float32).reshape(height, width)
         depth_m = (far_m * near_m / (far_m - (far_m - near_m) * buffer)).astype(np.float32)
         mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
