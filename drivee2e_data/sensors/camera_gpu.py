@@ -47,6 +47,7 @@ def prepare(device: str) -> None:
 
         torch.cuda.init()
         torch.zeros(1, device=device)  # the primary context, made now
+        _nvjpeg()  # torchvision's import (seconds), here rather than in the first frame
 
 
 def cuda_started() -> bool:
