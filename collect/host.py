@@ -13,7 +13,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivee2e_data.sensors.camera_gpu import cuda_available
 from drivee2e_data.sim.world import egl_available
 
 WORKER_MEMORY_GIB = 1.5  # a worker's peak (0.7-0.8 GiB measured) with room to spare
@@ -27,7 +26,6 @@ class HostPlan:
     memory_gib: float
     gpu: bool
     egl: bool
-    post_process: str = "cpu"  # where camera images get weather, resize and JPEG: "cpu", "cuda"
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
@@ -35,7 +33,7 @@ class HostPlan:
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
             f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
-            f"{self.lidar} LiDAR, camera post-processing on {self.post_process}"
+            f"{self.lidar} LiDAR"
         )
 
 
@@ -62,11 +60,11 @@ def plan(
     gpu: bool | None = None,
     egl: bool | None = None,
     renderer: str = "auto",
-    cuda: bool | None = None,
 ) -> HostPlan:
-    """Workers, LiDAR and post-processing device for collecting `clips` clips here with
-    `renderer` (the measurements may be given; `egl` None: whether pybullet's EGL plugin loads,
-    tried once; `cuda` None: whether torch sees a CUDA device, asked only on an NVIDIA host)."""
+    """Workers and LiDAR for collecting `clips` clips here with `renderer` (the measurements may
+    be given; `egl` None: whether pybullet's EGL plugin loads, tried once). Camera images are
+    finished on the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU
+    (`--post-process cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
@@ -74,14 +72,6 @@ def plan(
         egl = False
     elif egl is None:
         egl = egl_available()
-    post_process = post_process_device(gpu) if cuda is None else ("cuda" if cuda else "cpu")
     workers = max(1, min(cores, max(clips, 1), int(memory // WORKER_MEMORY_GIB)))
     lidar = "depth" if egl else "raycast"
-    return HostPlan(workers, lidar, cores, memory, gpu, egl, post_process)
-
-
-def post_process_device(gpu: bool | None = None) -> str:
-    """Where camera images are finished: "cuda" where torch sees a CUDA device (asked only on an
-    NVIDIA host: importing torch costs seconds), else "cpu"."""
-    gpu = nvidia_gpu() if gpu is None else gpu
-    return "cuda" if gpu and cuda_available() else "cpu"
+    return HostPlan(workers, lidar, cores, memory, gpu, egl)

@@ -31,6 +31,7 @@ from drivee2e_data.metrics.openloop import CONVENTIONS
 from drivee2e_data.pipeline import write_view
 from drivee2e_data.scenario import AgentClass, TimeOfDay, Weather
 from drivee2e_data.sensors.camera_gpu import POST_PROCESS_DEVICES
+from drivee2e_data.sensors.camera_gpu import check_device as check_post_process_device
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, LABEL_KINDS
 from drivee2e_data.sensors.suite import LIDAR_METHODS
 from drivee2e_data.sim.world import RENDERERS
@@ -200,10 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
         "depth where pybullet's EGL renderer loads, else raycast",
     )  # fmt: skip
     collect.add_argument(
-        "--post-process", choices=POST_PROCESS_DEVICES, default=None,
-        help="where camera images get their weather, resize and JPEG: cpu (OpenCV, the "
-        "reference) or cuda (torch and nvJPEG; images within 2 levels of the CPU's before "
-        "JPEG); default: cuda where torch sees a CUDA device, else cpu",
+        "--post-process", choices=POST_PROCESS_DEVICES, default="cpu",
+        help="where camera images get their weather, resize and JPEG: cpu (OpenCV; default) "
+        "or cuda (torch and nvJPEG, images within 2 levels of the CPU's before JPEG; slower "
+        "with many workers sharing one GPU, see docs/benchmarks.md)",
     )  # fmt: skip
 
     split = commands.add_parser(
@@ -464,14 +465,13 @@ def _size(text: str) -> tuple[int, int]:
 def _collect(args: argparse.Namespace) -> int:
     clips = len(args.only) if args.only else len(store.scenario_ids(args.data))
     workers, lidar, post_process = args.workers, args.lidar, args.post_process
+    check_post_process_device(post_process)  # before any clip starts
     if workers == "auto" or lidar is None:  # the host decides (an EGL probe, once)
         host = collect_host.plan(clips, renderer=args.renderer)
         if clips:
             print(host.describe(), file=sys.stderr)
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar
-        post_process = post_process or host.post_process
-    post_process = post_process or collect_host.post_process_device()
     options = CollectOptions(
         renderer=args.renderer,
         cameras=tuple(args.cameras) if args.cameras else None,

@@ -146,6 +146,15 @@ def test_bad_collect_arguments_are_clear_errors(
     assert expected in capsys.readouterr().err
 
 
+def test_gpu_post_processing_without_cuda_is_a_clear_error(collected_root: Path, capsys):
+    from drivee2e_data.sensors.camera_gpu import cuda_available
+
+    if cuda_available():
+        pytest.skip("this machine has CUDA")
+    assert main(["collect", str(collected_root), "--post-process", "cuda"]) == 2
+    assert "post-process device 'cuda': torch sees no CUDA device here" in capsys.readouterr().err
+
+
 def test_index_rows_follow_the_scenario(collected_root: Path):
     table = pq.read_table(collected_root / "logs" / "index.parquet").to_pylist()
     assert len(table) == 36 + 6
@@ -261,14 +270,9 @@ def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsy
 def test_the_host_plan_fits_cores_clips_memory_and_gpu():
     from drivee2e_data.collect.host import plan
 
-    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, egl=True, cuda=True)
-    assert (gpu_host.workers, gpu_host.lidar, gpu_host.post_process) == (16, "depth", "cuda")
+    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, egl=True)
+    assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
     assert "EGL -> 16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
-    assert "camera post-processing on cuda" in gpu_host.describe()
-    assert (
-        plan(clips=8, cores=16, memory=125.0, gpu=True, egl=True, cuda=False).post_process == "cpu"
-    )
-    assert plan(clips=8, cores=2, memory=24.0, gpu=False, egl=True).post_process == "cpu"
     assert plan(clips=3, cores=16, memory=125.0, gpu=False, egl=True).workers == 3  # per clip
     assert plan(clips=100, cores=16, memory=6.0, gpu=False, egl=True).workers == 4  # 1.5 GiB each
     laptop = plan(clips=12, cores=2, memory=24.0, gpu=False, egl=True)
