@@ -1,5 +1,7 @@
 """Milliseconds per camera image for the weather and light post-processing, per weather by day
-and at night, against drawing the sensor noise afresh (the reference), in the same run.
+and at night, against the reference in the same run: the same code with the sensor noise drawn
+afresh, the fog colour image filled for every image and the wet ground darkened through numpy's
+masked copy (as it was before 2026-11-23).
 
     python scripts/bench_post_process.py [--repeats 10] [--size 1024x768]
 
@@ -24,6 +26,19 @@ from drivee2e_data.sim.conditions import Lighting, post_process
 
 def fresh_noise(shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
     return rng.standard_normal(shape, dtype=np.float32)
+
+
+def filled_image(shape: tuple[int, ...], rgb: tuple[int, int, int]) -> np.ndarray:
+    image = np.empty(shape, np.uint8)
+    image[:] = rgb
+    return image
+
+
+def numpy_darken(image: np.ndarray, where: np.ndarray) -> None:
+    import cv2
+
+    darker = cv2.convertScaleAbs(image, alpha=conditions.WET_DARKENING)
+    np.copyto(image, darker, where=where[..., None])
 
 
 def milliseconds(rgb, depth, weather: Weather, night: bool, repeats: int) -> float:
@@ -53,7 +68,11 @@ def main() -> None:
     print(f"{'weather':10} {'light':6} {'reference':>10} {'ours':>8} {'ratio':>7}")
     for weather in (Weather.CLEAR, Weather.OVERCAST, Weather.FOG, Weather.RAIN):
         for night in (False, True):
-            with mock.patch.object(conditions, "sensor_noise", fresh_noise):
+            with (
+                mock.patch.object(conditions, "sensor_noise", fresh_noise),
+                mock.patch.object(conditions, "_uniform_image", filled_image),
+                mock.patch.object(conditions, "_darken", numpy_darken),
+            ):
                 reference = milliseconds(rgb, depth, weather, night, args.repeats)
             ours = milliseconds(rgb, depth, weather, night, args.repeats)
             light = "night" if night else "day"
