@@ -57,6 +57,17 @@ def render(
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation)
 
 
+def noise_seed(scenario_id: str, frame: int, camera: Camera) -> int:
+    """The seed of a camera image's noise and rain: scenario, frame and camera, so the same image
+    comes out however often, and wherever, the frame is made."""
+    return zlib.crc32(f"{scenario_id}/{frame}/{camera.name}".encode())
+
+
+def has_headlights(camera: Camera) -> bool:
+    """Whether the ego's headlights light this camera's view at night (the front camera's)."""
+    return camera.name == "CAM_FRONT"
+
+
 def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.uint8]:
     """The view's RGB at the camera's size under the clip's weather and light, its noise seeded
     by scenario, frame and camera (the same image however often the frame is made); headlights
@@ -64,14 +75,13 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
     import cv2
 
     scenario = world.scenario
-    seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{view.camera.name}".encode())
     rgb = post_process(
         view.rgb,
         view.depth_m,
         scenario.conditions,
         world.lighting,
-        seed,
-        headlights=view.camera.name == "CAM_FRONT",
+        noise_seed(scenario.scenario_id, frame, view.camera),
+        headlights=has_headlights(view.camera),
     )
     size = (view.camera.width, view.camera.height)
     if rgb.shape[1::-1] == size:

@@ -9,12 +9,12 @@ the same bytes every time for the same inputs on the same device.
 from __future__ import annotations
 
 import functools
-import zlib
+import sys
 
 import numpy as np
 
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg
+from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, has_headlights, noise_seed
 from drivee2e_data.sim import conditions_torch
 from drivee2e_data.sim.world import World
 
@@ -52,8 +52,6 @@ def prepare(device: str) -> None:
 
 def cuda_started() -> bool:
     """Whether this process has started CUDA through torch."""
-    import sys
-
     torch = sys.modules.get("torch")
     return torch is not None and bool(torch.cuda.is_initialized())
 
@@ -69,10 +67,10 @@ def finish(world: World, views: list[CameraFrame], frame: int, device: str) -> l
     for view in views:
         rgb = torch.from_numpy(np.ascontiguousarray(view.rgb)).to(device, non_blocking=True)
         depth = torch.from_numpy(view.depth_m).to(device, non_blocking=True)
-        seed = zlib.crc32(f"{scenario.scenario_id}/{frame}/{view.camera.name}".encode())
         image = conditions_torch.post_process(
-            rgb, depth, scenario.conditions, world.lighting, seed,
-            headlights=view.camera.name == "CAM_FRONT",
+            rgb, depth, scenario.conditions, world.lighting,
+            noise_seed(scenario.scenario_id, frame, view.camera),
+            headlights=has_headlights(view.camera),
         )  # fmt: skip
         chw = image.permute(2, 0, 1)
         size = (view.camera.height, view.camera.width)

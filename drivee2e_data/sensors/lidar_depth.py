@@ -28,7 +28,7 @@ from drivee2e_data.sim.twin import PaintRaster
 VIEWS = 6  # views around the LiDAR, each 360 / VIEWS degrees of azimuth wide
 # pixels per azimuth step at the centre of a view (more towards its edges). One pixel a step
 # reads the same ranges as 1.5 did (median difference to ray casting 0.02 cm, identical points
-# per box, docs/benchmarks.md) from 2.25x fewer pixels: a sweep 281 -> 228 ms on llvmpipe
+# per box, docs/benchmarks.md) from 2.25x fewer pixels: a sweep 268 -> 196 ms on llvmpipe
 OVERSAMPLE = 1.0
 NEAR_M = 1.0  # nothing nearer is seen: the roof LiDAR clears its own car by more, and the
 # 16-bit depth buffer steps r^2 / (near * 65535) at range r: 11 cm at 85 m (37 cm with 0.3 m)
