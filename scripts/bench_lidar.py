@@ -19,7 +19,7 @@ import numpy as np
 from bench_render import four_way_clip
 
 from drivee2e_data.sensors import lidar
-from drivee2e_data.sensors.lidar_depth import OVERSAMPLE, depth_sweep
+from drivee2e_data.sensors.lidar_depth import OVERSAMPLE, ROW_SCALE, depth_sweep
 from drivee2e_data.sensors.suite import SensorSuite
 from drivee2e_data.sim.world import World
 
@@ -41,6 +41,10 @@ def main() -> None:
         "--oversample", type=float, default=OVERSAMPLE,
         help=f"depth views' pixels per azimuth step (default {OVERSAMPLE})",
     )  # fmt: skip
+    parser.add_argument(
+        "--row-scale", type=float, default=ROW_SCALE,
+        help=f"depth views' rows per column's worth of angle (default {ROW_SCALE})",
+    )  # fmt: skip
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder))
@@ -56,14 +60,15 @@ def main() -> None:
             lambda: lidar.sweep(world.client, rig_lidar, to_world, kinds, paint), args.repeats
         )
         read, read_s = timed(
-            lambda: depth_sweep(world, rig_lidar, to_world, paint, args.oversample), args.repeats
+            lambda: depth_sweep(world, rig_lidar, to_world, paint, args.oversample, args.row_scale),
+            args.repeats,
         )
         agents = sorted(world.bodies.values())
         print(f"renderer: {world.renderer}; clip {scenario.scenario_id}, frame {frame}")
     print(f"ray casting (reference) {1000 * cast_s:7.1f} ms a sweep, {len(cast.ring)} points")
     print(
         f"depth images            {1000 * read_s:7.1f} ms a sweep, {len(read.ring)} points "
-        f"({args.oversample:g} pixels per azimuth step)"
+        f"({args.oversample:g} pixels per azimuth step, {args.row_scale:g} rows per column)"
     )
     print(f"ratio                   {cast_s / read_s:7.2f}x")
     a, b = lidar.ranges_per_beam(cast, rig_lidar), lidar.ranges_per_beam(read, rig_lidar)

@@ -1,5 +1,6 @@
 """The pybullet twin and replay: known answers on a small synthetic scene."""
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,50 @@ def test_concave_polygon_triangulates_exactly():
         for k in range(0, len(indices), 3)
     )
     assert area == pytest.approx(l_shape.area)
+
+
+def _outward_triangles(vertices, indices, centre) -> tuple[int, int]:
+    """(triangles, triangles whose right-hand normal points away from `centre`)."""
+    triangles = vertices[np.asarray(indices).reshape(-1, 3)]
+    normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    outward = ((triangles.mean(axis=1) - centre) * normals).sum(axis=1) > 0
+    return len(triangles), int(outward.sum())
+
+
+def test_twin_meshes_wind_outward_and_close():
+    centre = np.array([1.0, 2.0, 3.0])
+    vertices, indices = twin_module.box_mesh(centre, 0.7, np.array([4.0, 2.0, 1.5]))
+    assert _outward_triangles(vertices, indices, centre) == (12, 12)
+    assert np.allclose(np.sort(np.abs((vertices - centre)[:, 2])), 0.75)
+    vertices, indices, normals = twin_module.sphere_mesh(centre, 2.0, rings=8, segments=12)
+    assert _outward_triangles(vertices, indices, centre) == (2 * 12 * 7, 2 * 12 * 7)
+    assert np.allclose(np.linalg.norm(vertices - centre, axis=1), 2.0)
+    assert np.allclose(normals, (vertices - centre) / 2.0)
+    clockwise = np.array([[0.0, 0.0], [0.0, 4.0], [5.0, 4.0], [5.0, 0.0]])
+    vertices, indices = twin_module.prism_mesh(clockwise, 0.0, 3.0)
+    # four walls of two triangles and a roof of two
+    assert _outward_triangles(vertices, indices, np.array([2.5, 2.0, 1.5])) == (10, 10)
+
+
+def test_twin_draws_one_body_per_kind_and_colour_and_one_per_lamp(clip):
+    """Static elements merge (pybullet's renderer pays per body drawn); lamps stay apart, as
+    `Twin.show` colours each one."""
+    intersection_map, scenario = clip
+    with World(intersection_map, scenario, renderer="tiny") as replay:
+        twin = replay.twin
+        lamps = {body for lamps in twin.lamps.values() for body, _ in lamps}
+        assert len(lamps) == 3 * len(intersection_map.signal_heads) > 0
+        merged = [body for body in twin.bodies if body not in lamps]
+        colours = {
+            body: tuple(np.round(replay.p.getVisualShapeData(body, physicsClientId=replay.client)[0][7], 3))
+            for body in merged
+        }  # fmt: skip
+        pairs = [(twin.segmentation[body], colours[body]) for body in merged]
+        assert len(pairs) == len(set(pairs))
+        counts = Counter(kind for kind, _ in pairs)
+        assert counts["road"] == counts["ground"] == counts["building"] == 1
+        assert counts["vegetation"] == (2 if intersection_map.trees else 0)
+        assert counts["crosswalk"] == (2 if intersection_map.crosswalks else 0)
 
 
 def test_world_builds_on_real_map(tmp_path: Path):
@@ -274,18 +319,20 @@ def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):
 
 
 def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
-    """The EGL plugin draws at most 1024x768: a 1600x900 request comes back at 1600x900, its
-    body mask the nearest drawn pixel's (the native drawing, resized by index)."""
+    """The EGL plugin draws at most 1024x768: a 1600x900 request is drawn at 1024x576 (its
+    aspect ratio kept: square pixels) and comes back at 1600x900, its body mask the nearest
+    drawn pixel's (the native drawing, resized by index)."""
     intersection_map, scenario = clip
     with World(intersection_map, scenario, renderer="auto") as world:
         if world.renderer != "egl":
             pytest.skip("pybullet's EGL plugin does not load here")
-        assert world.drawn_size(1600, 900) == (1024, 768)
+        assert world.drawn_size(1600, 900) == (1024, 576)
+        assert world.drawn_size(1200, 1200) == (768, 768)
         assert world.drawn_size(320, 180) == (320, 180)
         full = _front_view(world, scenario, 10, (1600, 900), segmentation=True)
         native = _front_view(world, scenario, 10, (1600, 900), segmentation=True, native=True)
-    assert full.rgb.shape == (900, 1600, 3) and native.rgb.shape == (768, 1024, 3)
-    rows = ((np.arange(900) + 0.5) * 768 / 900).astype(int)
+    assert full.rgb.shape == (900, 1600, 3) and native.rgb.shape == (576, 1024, 3)
+    rows = ((np.arange(900) + 0.5) * 576 / 900).astype(int)
     columns = ((np.arange(1600) + 0.5) * 1024 / 1600).astype(int)
     assert np.array_equal(full.segmentation, native.segmentation[rows[:, None], columns])
     assert np.array_equal(full.depth_m, native.depth_m[rows[:, None], columns])

@@ -30,21 +30,44 @@ VIEWS = 6  # views around the LiDAR, each 360 / VIEWS degrees of azimuth wide
 # reads the same ranges as 1.5 did (median difference to ray casting 0.02 cm, identical points
 # per box, docs/benchmarks.md) from 2.25x fewer pixels: a sweep 268 -> 196 ms on llvmpipe
 OVERSAMPLE = 1.0
+ROW_SCALE = 1.0  # rows per column's worth of angle (the beams' rings lie 3 azimuth steps apart)
 NEAR_M = 1.0  # nothing nearer is seen: the roof LiDAR clears its own car by more, and the
 # 16-bit depth buffer steps r^2 / (near * 65535) at range r: 11 cm at 85 m (37 cm with 0.3 m)
 
 
-def _view_geometry(lidar: Lidar, oversample: float) -> tuple[float, int, int, float]:
-    """(focal length in pixels, width, height, vertical field of view in degrees) of one view
-    with `oversample` pixels per azimuth step at its centre."""
+def _view_geometry(lidar: Lidar, oversample: float, row_scale: float) -> _Geometry:
+    """One view with `oversample` pixels per azimuth step at its centre and `row_scale` rows per
+    column's worth of angle, framed off-centre to span just the beams' elevations (a level
+    view's beams rise at most `upper_deg` and fall at most `lower_deg`, steepest at its edges)."""
     half_width = math.pi / VIEWS
-    focal = oversample / math.tan(math.radians(lidar.azimuth_step_deg))
-    steepest = max(abs(math.radians(lidar.upper_deg)), abs(math.radians(lidar.lower_deg)))
-    half_height = math.atan(math.tan(steepest) / math.cos(half_width))
-    width = 2 * math.ceil(focal * math.tan(half_width)) + 2
-    height = 2 * math.ceil(focal * math.tan(half_height)) + 2
-    vertical_fov = math.degrees(2 * math.atan(height / (2 * focal)))
-    return focal, width, height, vertical_fov
+    focal_x = oversample / math.tan(math.radians(lidar.azimuth_step_deg))
+    focal_y = row_scale * focal_x
+    rise = math.tan(math.radians(max(lidar.upper_deg, 0.0))) / math.cos(half_width)
+    fall = math.tan(math.radians(max(-lidar.lower_deg, 0.0))) / math.cos(half_width)
+    half_columns = math.ceil(focal_x * math.tan(half_width)) + 1
+    rows_above = math.ceil(focal_y * rise) + 1  # one pixel beyond the extreme beams each way
+    rows_below = math.ceil(focal_y * fall) + 1
+    frustum = (
+        -half_columns / focal_x,
+        half_columns / focal_x,
+        -rows_below / focal_y,
+        rows_above / focal_y,
+    )
+    return _Geometry(focal_x, focal_y, 2 * half_columns, rows_above + rows_below, rows_above,
+                     frustum)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """One view's image: focal lengths in pixels, size, the view axis's row offset (rows above
+    it) and the frustum's edge tangents (left, right, bottom, top)."""
+
+    focal_x: float
+    focal_y: float
+    width: int
+    height: int
+    rows_above: int
+    frustum: tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -63,19 +86,23 @@ class _Samples:
 class _Layout:
     directions: NDArray[np.float64]  # (R, 3) LiDAR frame
     ring: NDArray[np.uint8]
-    width: int
-    height: int
-    vertical_fov_deg: float
+    geometry: _Geometry
     views: tuple[_Samples, ...]
 
 
 @functools.lru_cache(maxsize=4)
 def _layout(
-    channels: int, upper_deg: float, lower_deg: float, step_deg: float, oversample: float
+    channels: int,
+    upper_deg: float,
+    lower_deg: float,
+    step_deg: float,
+    oversample: float,
+    row_scale: float,
 ) -> _Layout:
     lidar = Lidar("layout", np.eye(4), channels, 0.0, upper_deg, lower_deg, step_deg)
     directions, ring = beam_directions(lidar)
-    focal, width, height, vertical_fov = _view_geometry(lidar, oversample)
+    geometry = _view_geometry(lidar, oversample, row_scale)
+    width, height = geometry.width, geometry.height
     azimuth = np.arctan2(directions[:, 1], directions[:, 0])
     elevation = np.arcsin(np.clip(directions[:, 2], -1.0, 1.0))
     view_of = np.floor((azimuth + math.pi / VIEWS) / (2 * math.pi / VIEWS)).astype(int) % VIEWS
@@ -85,8 +112,12 @@ def _layout(
         relative = azimuth[beams] - view * 2 * math.pi / VIEWS
         relative = (relative + math.pi) % (2 * math.pi) - math.pi
         # image coordinates of each beam, pixel centres at integers; x right, row 0 at the top
-        column = width / 2 - 0.5 - focal * np.tan(relative)
-        row = height / 2 - 0.5 - focal * np.tan(elevation[beams]) / np.cos(relative)
+        column = width / 2 - 0.5 - geometry.focal_x * np.tan(relative)
+        row = (
+            geometry.rows_above
+            - 0.5
+            - geometry.focal_y * np.tan(elevation[beams]) / np.cos(relative)
+        )
         left = np.clip(np.floor(column).astype(np.intp), 0, width - 2)
         top = np.clip(np.floor(row).astype(np.intp), 0, height - 2)
         dx = np.clip(column - left, 0.0, 1.0)
@@ -95,7 +126,7 @@ def _layout(
         weights = np.stack([(1 - dx) * (1 - dy), dx * (1 - dy), (1 - dx) * dy, dx * dy])
         along = np.cos(elevation[beams]) * np.cos(relative)
         views.append(_Samples(beams, corners, weights, np.argmax(weights, axis=0), along))
-    return _Layout(directions, ring, width, height, vertical_fov, tuple(views))
+    return _Layout(directions, ring, geometry, tuple(views))
 
 
 def depth_sweep(
@@ -104,6 +135,7 @@ def depth_sweep(
     sensor_to_world: NDArray[np.float64],
     paint: PaintRaster | None = None,
     oversample: float = OVERSAMPLE,
+    row_scale: float = ROW_SCALE,
 ) -> LidarSweep:
     """One full sweep from the LiDAR at `sensor_to_world` (4x4), read from `world`'s renders;
     beams at silhouettes (where neighbouring pixels show different bodies, about 4% of them)
@@ -111,8 +143,14 @@ def depth_sweep(
     road hits their markings' intensity, as in `lidar.sweep`; `oversample` sets the views'
     pixels per azimuth step."""
     layout = _layout(
-        lidar.channels, lidar.upper_deg, lidar.lower_deg, lidar.azimuth_step_deg, oversample
+        lidar.channels,
+        lidar.upper_deg,
+        lidar.lower_deg,
+        lidar.azimuth_step_deg,
+        oversample,
+        row_scale,
     )
+    geometry = layout.geometry
     directions = layout.directions
     origin = sensor_to_world[:3, 3]
     rotation = sensor_to_world[:3, :3]
@@ -125,13 +163,14 @@ def depth_sweep(
         image = world.render(
             origin,
             origin + forward,
-            layout.width,
-            layout.height,
-            layout.vertical_fov_deg,
+            geometry.width,
+            geometry.height,
+            0.0,
             far_m=lidar.range_m,
             segmentation=True,
             near_m=NEAR_M,
             up=rotation[:, 2],
+            frustum=geometry.frustum,
         )
         depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples)
         distance[samples.beams] = depth / samples.along
