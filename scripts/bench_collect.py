@@ -67,6 +67,11 @@ def main() -> None:
     parser.add_argument("--label-scale", type=int, default=4)
     parser.add_argument("--lidar", choices=("raycast", "depth"), default="raycast")
     parser.add_argument("--post-process", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument(
+        "--no-plain", action="store_true",
+        help="skip the run with the default options (the reference for --lidar, --post-process "
+        "and --camera-labels); for comparing two versions of the code, each its own reference",
+    )  # fmt: skip
     args = parser.parse_args()
     kinds = tuple(k for k in args.camera_labels.split(",") if k)
     # one job per worker at least (two at least), so every worker has a clip to collect
@@ -95,7 +100,7 @@ def main() -> None:
         ours = run(root, labelled, args.workers)
         ours_wall = time.perf_counter() - ours_start
         plain, plain_wall = None, float("nan")
-        if labelled != CollectOptions(max_frames=args.frames):  # the plain suite, same run
+        if labelled != CollectOptions(max_frames=args.frames) and not args.no_plain:
             plain_root = Path(folder) / "plain"
             store.write_map(plain_root, intersection_map)
             for suffix in suffixes:
@@ -130,13 +135,13 @@ def main() -> None:
             f"{reference.frames} frames)"
         )
         print(f"ratio     {ours_fps / reference_fps:6.2f}x")
-    if kinds:
+    if kinds and plain is not None:
         print(
             f"without labels {plain_fps:6.2f} frames/s (reference), with {','.join(kinds)} at "
             f"1/{args.label_scale} resolution {ours_fps:6.2f}: {100 * (plain_fps / ours_fps - 1):.1f}% "
             f"slower; log {plain_mb:.2f} -> {sum(r.log_bytes for r in collected) / ours.frames / 1e6:.2f} MB per frame"
         )
-    if args.lidar != "raycast" or args.post_process != "cpu":
+    if (args.lidar != "raycast" or args.post_process != "cpu") and plain is not None:
         plain_stages = stage_table(plain)
         print(
             f"reference (ray-cast LiDAR, CPU post-processing) {plain_fps:6.2f} frames/s; "
