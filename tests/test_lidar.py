@@ -126,3 +126,16 @@ def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
     assert np.isclose(read.intensity, INTENSITY["road_mark"]).mean() == pytest.approx(
         np.isclose(cast.intensity, INTENSITY["road_mark"]).mean(), abs=0.01
     )
+
+
+def test_road_and_its_markings_are_one_surface_for_the_depth_lidar():
+    """Paint lies within a centimetre of the road: a beam between asphalt and paint pixels is
+    interpolated, not cast; every other body (and nothing, -1) is a surface of its own."""
+    from types import SimpleNamespace
+
+    from drivee2e_data.sensors.lidar_depth import _surfaces
+
+    kinds = {0: "ground", 1: "road", 2: "road_mark", 3: "crosswalk", 4: "building", 5: "stop_line"}
+    world = SimpleNamespace(bodies={"car": 6, "bus": 7}, twin=SimpleNamespace(segmentation=kinds))
+    surface = _surfaces(world)
+    assert surface.tolist() == [-1, 0, 1, 1, 1, 4, 1, 6, 7]  # indexed by mask value + 1

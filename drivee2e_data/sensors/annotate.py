@@ -47,13 +47,17 @@ def projected_area(
 ) -> shapely.Geometry:
     """The box's projection clipped to the image, as a polygon in pixels (empty when behind)."""
     camera = frame.camera
-    world_to_camera = np.linalg.inv(camera_to_world(camera, ego_to_world))
-    points = np.column_stack([corners_world, np.ones(8)]) @ world_to_camera.T
+    to_world = camera_to_world(camera, ego_to_world)
+    # a rigid transform's inverse: rotation transposed
+    points = (corners_world - to_world[:3, 3]) @ to_world[:3, :3]
     in_front = points[:, 2] > 0.1
     if not in_front.any():
         return shapely.Polygon()
-    pixels = (camera.intrinsic @ points[in_front, :3].T).T
+    pixels = (camera.intrinsic @ points[in_front].T).T
     pixels = pixels[:, :2] / pixels[:, 2:3]
+    low, high = pixels.min(axis=0), pixels.max(axis=0)
+    if high[0] <= 0 or high[1] <= 0 or low[0] >= camera.width or low[1] >= camera.height:
+        return shapely.Polygon()  # wholly beside the image: spares shapely's hull and clip
     image = shapely.box(0, 0, camera.width, camera.height)
     return shapely.MultiPoint(pixels).convex_hull.intersection(image)
 

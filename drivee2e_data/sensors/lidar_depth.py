@@ -5,7 +5,7 @@ the beam pattern's resolution; every beam takes the range the depth image holds 
 The renderer does what ray casting does on the CPU, nearly for free on a GPU. For a plane,
 inverse depth is affine in image coordinates, so a beam between pixel centres takes the bilinear
 interpolation of the four neighbours' inverse depth when all four show the same body (exact on
-flat surfaces). Where they show different bodies (a silhouette, about 4% of the beams), the
+flat surfaces). Where they show different surfaces (a silhouette, about 5% of the beams), the
 beam is cast as a ray: a nearest-pixel guess there moves a box's outline by up to half a pixel,
 and a box top lying along a beam ring then gains or loses a whole row of points. It sees what the cameras see: agents' visual shapes, which are their collision
 shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
@@ -142,7 +142,7 @@ def depth_sweep(
     row_scale: float = ROW_SCALE,
 ) -> LidarSweep:
     """One full sweep from the LiDAR at `sensor_to_world` (4x4), read from `world`'s renders;
-    beams at silhouettes (where neighbouring pixels show different bodies, about 4% of them)
+    beams at silhouettes (where neighbouring pixels show different surfaces, about 5% of them)
     are cast as rays instead, so edges fall exactly where ray casting puts them. `paint` gives
     road hits their markings' intensity, as in `lidar.sweep`; `oversample` sets the views'
     pixels per azimuth step."""
@@ -161,6 +161,7 @@ def depth_sweep(
     distance = np.full(len(directions), np.nan)
     body = np.full(len(directions), -1, np.int64)
     edge = np.zeros(len(directions), dtype=bool)
+    surface = _surfaces(world)
     for view, samples in enumerate(layout.views):
         centre_azimuth = view * 2 * math.pi / VIEWS
         forward = rotation @ np.array([math.cos(centre_azimuth), math.sin(centre_azimuth), 0.0])
@@ -176,7 +177,7 @@ def depth_sweep(
             up=rotation[:, 2],
             frustum=geometry.frustum,
         )
-        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples)
+        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples, surface)
         distance[samples.beams] = depth / samples.along
         body[samples.beams] = hit_body
         edge[samples.beams] = at_edge
@@ -196,18 +197,38 @@ def depth_sweep(
     )
 
 
+# the road and the markings on it lie within a centimetre of one plane: one surface, whose
+# edges between paint and asphalt (a third of all edges) need no ray
+ROAD_SURFACE_KINDS = ("road", "road_mark", "crosswalk", "stop_line")
+
+
+def _surfaces(world) -> NDArray[np.int64]:
+    """Surface id of each mask value `v` at index `v + 1`: the body itself (-1 for nothing),
+    except that the road and its markings are one surface."""
+    road = sorted(b for b, kind in world.twin.segmentation.items() if kind in ROAD_SURFACE_KINDS)
+    largest = max([*world.bodies.values(), *world.twin.segmentation], default=0)
+    surface = np.arange(-1, largest + 1, dtype=np.int64)
+    if road:
+        surface[np.asarray(road) + 1] = road[0]
+    return surface
+
+
 def _sample(
-    depth_m: NDArray[np.float32], mask: NDArray[np.int32], samples: _Samples
+    depth_m: NDArray[np.float32],
+    mask: NDArray[np.int32],
+    samples: _Samples,
+    surface: NDArray[np.int64],
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
     """Depth and body along each beam, and whether it lies at an edge: inverse depth
-    interpolated bilinearly where the four neighbouring pixels show one body, the nearest
-    pixel's depth otherwise (an edge)."""
+    interpolated bilinearly where the four neighbouring pixels show one surface (`surface`,
+    indexed by mask value + 1), the nearest pixel's depth and body otherwise (an edge)."""
     corner_bodies = mask.ravel()[samples.corners]
     corner_bodies = np.where(corner_bodies >= 0, corner_bodies & ((1 << 24) - 1), -1)
     corner_depths = depth_m.ravel()[samples.corners].astype(np.float64)
-    one_body = (corner_bodies == corner_bodies[0]).all(axis=0)
-    same = one_body & (corner_bodies[0] >= 0)
+    corner_surfaces = surface[corner_bodies + 1]
+    one_surface = (corner_surfaces == corner_surfaces[0]).all(axis=0)
+    same = one_surface & (corner_surfaces[0] >= 0)
     inverse = (samples.weights / corner_depths).sum(axis=0)
     picked = np.arange(len(samples.beams))
     depth = np.where(same, 1.0 / inverse, corner_depths[samples.nearest, picked])
-    return depth, corner_bodies[samples.nearest, picked].astype(np.int64), ~one_body
+    return depth, corner_bodies[samples.nearest, picked].astype(np.int64), ~one_surface
