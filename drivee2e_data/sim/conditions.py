@@ -83,7 +83,11 @@ def post_process(
         surface = depth_m[image.shape[0] // 2 :] < 150.0  # road and ground, mostly
         _darken(lower, surface)
     if visibility is not None:
-        transmission = np.exp(np.minimum(depth_m, 1e4) * np.float32(-3.0 / visibility))
+        # OpenCV's exp: a third the time of numpy's (depth is at most the far plane, or inf,
+        # whose transmission is 0 either way)
+        transmission = cv2.exp(
+            np.multiply(depth_m, np.float32(-3.0 / visibility), dtype=np.float32)
+        )
         fog_rgb = np.round(FOG_RGB * (NIGHT_GAIN if light.night else 1.0)).astype(np.uint8)
         fog = _uniform_image(image.shape, tuple(fog_rgb.tolist()))
         image = cv2.blendLinear(image, fog, transmission, 1.0 - transmission)
