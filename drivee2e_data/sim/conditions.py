@@ -95,19 +95,31 @@ def post_process(
         night = image.astype(np.float32)
         night *= NIGHT_GAIN
         if headlights:
-            height, width = depth_m.shape
-            columns = np.abs(np.arange(width) - width / 2) / (width / 2)
-            cone = np.clip(1.0 - columns, 0.0, 1.0)[None, :] * (
-                np.arange(height)[:, None] > height * 0.45
-            )
-            falloff = np.clip(1.0 - depth_m / HEADLIGHT_REACH_M, 0.0, 1.0) * cone
-            night *= (1.0 + 3.0 * falloff[..., None]).astype(np.float32)
+            falloff = np.multiply(depth_m, np.float32(-1.0 / HEADLIGHT_REACH_M), dtype=np.float32)
+            falloff += np.float32(1.0)
+            np.clip(falloff, 0.0, 1.0, out=falloff)
+            falloff *= _headlight_cone(*depth_m.shape)
+            falloff *= np.float32(3.0)
+            falloff += np.float32(1.0)
+            night *= falloff[..., None]
         night += sensor_noise(night.shape, rng) * np.float32(NIGHT_NOISE_SIGMA)
         np.clip(night, 0, 255, out=night)
         image = night.astype(np.uint8)
     if conditions.weather == Weather.RAIN:
         image = _rain(image, rng)
     return image
+
+
+@functools.lru_cache(maxsize=4)
+def _headlight_cone(height: int, width: int) -> NDArray[np.float32]:
+    """(H, W) the headlights' reach across the image: 1 at the centre column falling to 0 at
+    the sides, over the rows below 45% of the height; made once per size (read-only)."""
+    columns = np.abs(np.arange(width) - width / 2) / (width / 2)
+    cone = (
+        np.clip(1.0 - columns, 0.0, 1.0)[None, :] * (np.arange(height)[:, None] > height * 0.45)
+    ).astype(np.float32)
+    cone.flags.writeable = False
+    return cone
 
 
 def _darken(image: NDArray[np.uint8], where: NDArray[np.bool_]) -> None:
