@@ -4,8 +4,8 @@ the beam pattern's resolution; every beam takes the range the depth image holds 
 
 The renderer does what ray casting does on the CPU, nearly for free on a GPU. For a plane,
 inverse depth is affine in image coordinates, so a beam between pixel centres takes the bilinear
-interpolation of the four neighbours' inverse depth when all four show the same body (exact on
-flat surfaces). Where they show different surfaces (a silhouette, about 5% of the beams), the
+interpolation of the four neighbours' inverse depth when all four show the same surface (exact
+on flat surfaces; the road and its markings count as one). Where they show different surfaces (a silhouette, about 5% of the beams), the
 beam is cast as a ray: a nearest-pixel guess there moves a box's outline by up to half a pixel,
 and a box top lying along a beam ring then gains or loses a whole row of points. It sees what the cameras see: agents' visual shapes, which are their collision
 shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
@@ -30,12 +30,24 @@ VIEWS = 6  # views around the LiDAR, each 360 / VIEWS degrees of azimuth wide
 # reads the same ranges as 1.5 did (median difference to ray casting 0.02 cm, identical points
 # per box, docs/benchmarks.md) from 2.25x fewer pixels: a sweep 268 -> 196 ms on llvmpipe
 OVERSAMPLE = 1.0
-ROW_SCALE = (
-    0.5  # rows per column's worth of angle: the beams' rings lie 3.2 azimuth steps apart, and half
-)
-# as many rows read the same ranges (docs/benchmarks.md)
+# rows per column's worth of angle: the beams' rings lie 3.2 azimuth steps apart, and half as
+# many rows read the same ranges (docs/benchmarks.md)
+ROW_SCALE = 0.5
 NEAR_M = 1.0  # nothing nearer is seen: the roof LiDAR clears its own car by more, and the
 # 16-bit depth buffer steps r^2 / (near * 65535) at range r: 11 cm at 85 m (37 cm with 0.3 m)
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """One view's image: focal lengths in pixels, size, the view axis's row offset (rows above
+    it) and the frustum's edge tangents (left, right, bottom, top)."""
+
+    focal_x: float
+    focal_y: float
+    width: int
+    height: int
+    rows_above: int
+    frustum: tuple[float, float, float, float]
 
 
 def _view_geometry(lidar: Lidar, oversample: float, row_scale: float) -> _Geometry:
@@ -58,19 +70,6 @@ def _view_geometry(lidar: Lidar, oversample: float, row_scale: float) -> _Geomet
     )
     return _Geometry(focal_x, focal_y, 2 * half_columns, rows_above + rows_below, rows_above,
                      frustum)  # fmt: skip
-
-
-@dataclass(frozen=True)
-class _Geometry:
-    """One view's image: focal lengths in pixels, size, the view axis's row offset (rows above
-    it) and the frustum's edge tangents (left, right, bottom, top)."""
-
-    focal_x: float
-    focal_y: float
-    width: int
-    height: int
-    rows_above: int
-    frustum: tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -145,7 +144,7 @@ def depth_sweep(
     beams at silhouettes (where neighbouring pixels show different surfaces, about 5% of them)
     are cast as rays instead, so edges fall exactly where ray casting puts them. `paint` gives
     road hits their markings' intensity, as in `lidar.sweep`; `oversample` sets the views'
-    pixels per azimuth step."""
+    pixels per azimuth step and `row_scale` their rows per column's worth of angle."""
     layout = _layout(
         lidar.channels,
         lidar.upper_deg,
