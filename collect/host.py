@@ -2,9 +2,10 @@
 
 Each worker renders on one core (llvmpipe, or the CPU side of a GPU renderer) and peaks under
 1 GiB (docs/benchmarks.md), so the workers are the usable cores, no more than the clips and no
-more than the memory allows at `WORKER_MEMORY_GIB` each. Where pybullet's EGL renderer loads
-(a GPU, or Mesa's llvmpipe on the CPU), the LiDAR is read from depth images (1.8x faster a
-sweep than ray casting on llvmpipe, 3.45x on an H100 host); with TinyRenderer, ray casting.
+more than the memory allows at `WORKER_MEMORY_GIB` each. Where an OpenGL renderer works (the GL
+renderer or pybullet's EGL plugin, on a GPU or on Mesa's llvmpipe), the LiDAR is read from depth
+images (several times faster a sweep than ray casting, docs/benchmarks.md); with TinyRenderer,
+ray casting.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivee2e_data.sim.world import egl_available
+from drivee2e_data.sim.world import resolve_renderer
 
+RENDERER_NAMES = {"gl": "GL renderer", "egl": "pybullet EGL", "tiny": "TinyRenderer"}
 WORKER_MEMORY_GIB = 1.5  # a worker's peak (0.7-0.8 GiB measured) with room to spare
 
 
@@ -25,11 +27,11 @@ class HostPlan:
     cores: int
     memory_gib: float
     gpu: bool
-    egl: bool
+    renderer: str  # "gl", "egl" or "tiny": what "auto" resolved to here
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
-        renderer = "EGL" if self.egl else "TinyRenderer"
+        renderer = RENDERER_NAMES[self.renderer]
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
             f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
@@ -58,20 +60,16 @@ def plan(
     cores: int | None = None,
     memory: float | None = None,
     gpu: bool | None = None,
-    egl: bool | None = None,
     renderer: str = "auto",
 ) -> HostPlan:
     """Workers and LiDAR for collecting `clips` clips here with `renderer` (the measurements may
-    be given; `egl` None: whether pybullet's EGL plugin loads, tried once). Camera images are
+    be given; "auto" is resolved by trying the renderers, `sim.world.resolve_renderer`). Camera images are
     finished on the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU
     (`--post-process cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
-    if renderer == "tiny":
-        egl = False
-    elif egl is None:
-        egl = egl_available()
+    renderer = resolve_renderer(renderer)
     workers = max(1, min(cores, max(clips, 1), int(memory // WORKER_MEMORY_GIB)))
-    lidar = "depth" if egl else "raycast"
-    return HostPlan(workers, lidar, cores, memory, gpu, egl)
+    lidar = "raycast" if renderer == "tiny" else "depth"
+    return HostPlan(workers, lidar, cores, memory, gpu, renderer)

@@ -138,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("scenario_id")
     view.add_argument("--frame", type=int, default=0)
     view.add_argument("--out", type=Path, required=True, help="PNG to write")
-    view.add_argument("--renderer", choices=("auto", "egl", "tiny"), default="auto")
+    view.add_argument("--renderer", choices=RENDERERS, default="auto")
     view.add_argument(
         "--weather", choices=[w.value for w in Weather], help="view under another weather"
     )

@@ -3,7 +3,7 @@ a naive reference measured in the same run.
 
     python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
         [--camera-labels depth,semantic,instance [--label-scale 4]] [--lidar depth]
-        [--post-process cuda]
+        [--post-process cuda] [--renderer auto|gl|egl|tiny] [--no-plain]
 
 The clip is the first synthetic 4-way clip with at least 40 agents (as in bench_render.py),
 written under max(2, --workers) scenario ids so that every worker has a job; each is collected for
@@ -34,6 +34,7 @@ from drivee2e_data import store
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import CollectSummary, collect
 from drivee2e_data.sensors.suite import STAGES
+from drivee2e_data.sim.world import RENDERERS
 
 
 def run(root: Path, options: CollectOptions, workers: int) -> CollectSummary:
@@ -68,6 +69,10 @@ def main() -> None:
     parser.add_argument("--lidar", choices=("raycast", "depth"), default="raycast")
     parser.add_argument("--post-process", choices=("cpu", "cuda"), default="cpu")
     parser.add_argument(
+        "--renderer", choices=RENDERERS, default="auto",
+        help="the suite's renderer (the plain run and the TinyRenderer reference keep theirs)",
+    )  # fmt: skip
+    parser.add_argument(
         "--no-plain", action="store_true",
         help="skip the run with the default options (the reference for --lidar, --post-process "
         "and --camera-labels); for comparing two versions of the code, each its own reference",
@@ -82,6 +87,7 @@ def main() -> None:
         label_scale=args.label_scale,
         lidar=args.lidar,
         post_process=args.post_process,
+        renderer=args.renderer,
     )
     with tempfile.TemporaryDirectory() as folder:
         intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")

@@ -270,13 +270,14 @@ def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsy
 def test_the_host_plan_fits_cores_clips_memory_and_gpu():
     from drivee2e_data.collect.host import plan
 
-    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, egl=True)
+    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, renderer="gl")
     assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
-    assert "EGL -> 16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
-    assert plan(clips=3, cores=16, memory=125.0, gpu=False, egl=True).workers == 3  # per clip
-    assert plan(clips=100, cores=16, memory=6.0, gpu=False, egl=True).workers == 4  # 1.5 GiB each
-    laptop = plan(clips=12, cores=2, memory=24.0, gpu=False, egl=True)
-    assert (laptop.workers, laptop.lidar) == (2, "depth")  # llvmpipe: depth images 1.8x faster
-    assert plan(clips=12, cores=2, memory=24.0, gpu=False, egl=False).lidar == "raycast"
+    assert "GL renderer -> 16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
+    assert plan(clips=3, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 3  # per clip
+    assert plan(clips=100, cores=16, memory=6.0, gpu=False, renderer="egl").workers == 4  # 1.5 GiB
+    laptop = plan(clips=12, cores=2, memory=24.0, gpu=False, renderer="gl")
+    assert (laptop.workers, laptop.lidar) == (2, "depth")  # llvmpipe: depth images faster
+    assert plan(clips=12, cores=2, memory=24.0, gpu=False, renderer="egl").lidar == "depth"
     assert plan(clips=12, cores=2, memory=24.0, gpu=True, renderer="tiny").lidar == "raycast"
-    assert plan(clips=0, cores=2, memory=1.0, gpu=False, egl=False).workers == 1
+    assert plan(clips=0, cores=2, memory=1.0, gpu=False, renderer="tiny").workers == 1
+    assert plan(clips=1, cores=2, memory=8.0, gpu=False).renderer in ("gl", "egl", "tiny")
