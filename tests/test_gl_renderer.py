@@ -40,16 +40,12 @@ def _look_along_x(p, client: int, size=(64, 48)):
     return view, projection
 
 
-def _metres(buffer: np.ndarray) -> np.ndarray:
-    return FAR_M * NEAR_M / (FAR_M - (FAR_M - NEAR_M) * buffer.astype(np.float64))
-
-
 def test_a_cube_20_m_ahead_reads_19_m_to_its_face_with_its_body_id(box_scene):
     p, client, cube, renderer = box_scene
     renderer.sync(1)
-    rgb, depth, body = renderer.draw(*_look_along_x(p, client), 64, 48, segmentation=True)
+    rgb, depth, body = renderer.draw(*_look_along_x(p, client), 64, 48, True, FAR_M)
     assert rgb.shape == (48, 64, 3) and depth.shape == body.shape == (48, 64)
-    assert _metres(depth[24, 32]) == pytest.approx(19.0, abs=0.01)
+    assert depth[24, 32] == pytest.approx(19.0, abs=1e-4) and depth[0, 0] == FAR_M
     assert body[24, 32] == cube and body[0, 0] == -1  # the sky is no body
     assert np.array_equal(rgb[0, 0], np.round(np.array(SKY_RGB) * 255).astype(np.uint8))
     # the face looks at -x, the light from above: ambient only, red
@@ -63,13 +59,13 @@ def test_a_moved_body_is_drawn_where_it_went_after_a_sync(box_scene):
     p, client, cube, renderer = box_scene
     view, projection = _look_along_x(p, client)
     renderer.sync(1)
-    before = renderer.draw(view, projection, 64, 48, segmentation=False)[1]
+    before = renderer.draw(view, projection, 64, 48, False, FAR_M)[1]
     p.resetBasePositionAndOrientation(cube, [10, 0, 1], [0, 0, 0, 1], physicsClientId=client)
     renderer.sync(1)  # the same state: nothing is read again
-    assert np.array_equal(renderer.draw(view, projection, 64, 48, False)[1], before)
+    assert np.array_equal(renderer.draw(view, projection, 64, 48, False, FAR_M)[1], before)
     renderer.sync(2)
-    after = renderer.draw(view, projection, 64, 48, segmentation=False)[1]
-    assert _metres(after[24, 32]) == pytest.approx(9.0, abs=0.01)
+    after = renderer.draw(view, projection, 64, 48, False, FAR_M)[1]
+    assert after[24, 32] == pytest.approx(9.0, abs=1e-4)
 
 
 def test_obj_files_read_as_the_twin_writes_them(tmp_path):

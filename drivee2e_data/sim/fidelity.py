@@ -55,7 +55,7 @@ def render_kinds(world: World, grid: Grid) -> NDArray[np.object_]:
     )
     if world.gl is not None:
         world.gl.sync(world.state)
-        seg = world.gl.draw(view, projection, grid.size, grid.size, segmentation=True)[2]
+        seg = world.gl.draw(view, projection, grid.size, grid.size, True, altitude + 100.0)[2]
     else:
         renderer = p.ER_BULLET_HARDWARE_OPENGL if world.renderer == "egl" else p.ER_TINY_RENDERER
         _, _, _, _, seg = p.getCameraImage(grid.size, grid.size, view, projection,

@@ -34,6 +34,9 @@ from drivee2e_data.sim.twin import box_mesh, prism_mesh, sphere_mesh
 LOG = logging.getLogger(__name__)
 SKY_RGB = (0.70, 0.78, 0.90)  # background where nothing is drawn
 CYLINDER_SIDES = 16
+# spheres are small here (signal lamps and heads, 12 cm): 80 triangles each, half the twin's
+# crowns' (42 lamps are most of what moves or changes colour)
+SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
 FLOATS_PER_VERTEX = 10  # position (3), normal (3), colour (3), body id + 1 (1)
 
 VERTEX_SHADER = """
@@ -45,9 +48,11 @@ in vec3 in_colour;
 in float in_body;
 out vec3 normal;
 out vec3 colour;
+out float eye_depth;
 flat out float body;
 void main() {
     gl_Position = mvp * vec4(in_position, 1.0);
+    eye_depth = gl_Position.w;  // a perspective projection's w: the depth along the view axis
     normal = in_normal;
     colour = in_colour;
     body = in_body;
@@ -61,13 +66,16 @@ uniform float ambient;
 uniform float diffuse;
 in vec3 normal;
 in vec3 colour;
+in float eye_depth;
 flat in float body;
 layout(location = 0) out vec4 rgba;
 layout(location = 1) out float body_out;
+layout(location = 2) out float depth_out;
 void main() {
     float lambert = max(dot(normalize(normal), light_direction), 0.0);
     rgba = vec4(min(colour * (ambient + diffuse * lambert * light_rgb), vec3(1.0)), 1.0);
     body_out = body;
+    depth_out = eye_depth;
 }
 """
 
@@ -190,7 +198,9 @@ def primitive_triangles(
     if geometry == 3:
         return _flat_triangles(*box_mesh(np.zeros(3), 0.0, np.asarray(dimensions[:3])))
     if geometry == 2:
-        vertices, indices, normals = sphere_mesh(np.zeros(3), float(dimensions[0]))
+        vertices, indices, normals = sphere_mesh(
+            np.zeros(3), float(dimensions[0]), rings=SPHERE_RINGS, segments=SPHERE_SEGMENTS
+        )
         return _flat_triangles(vertices, indices, normals)
     if geometry == 4:
         length, radius = float(dimensions[0]), float(dimensions[1])
@@ -213,11 +223,12 @@ def _rotation(quaternion: Sequence[float]) -> NDArray[np.float64]:
 
 
 class _Body:
-    """One body's visual shapes, in its base frame, with each shape's colour."""
+    """One body's visual shapes in its base frame, and each shape's colour as first read."""
 
     def __init__(self, p, client: int, body: int) -> None:
         positions, normals, shapes, self.body = [], [], [], body
-        for index, data in enumerate(p.getVisualShapeData(body, physicsClientId=client)):
+        shape_data = p.getVisualShapeData(body, physicsClientId=client)
+        for index, data in enumerate(shape_data):
             local_position, local_orientation = data[5], data[6]
             triangles, triangle_normals = primitive_triangles(data[2], data[3], data[4].decode())
             rotation = _rotation(local_orientation)
@@ -229,36 +240,48 @@ class _Body:
             np.concatenate(normals).astype(np.float32) if normals else np.zeros((0, 3), np.float32),
             np.concatenate(shapes) if shapes else np.zeros(0, np.int32),
         )  # fmt: skip
+        self.colours = _colours(shape_data)
 
-    def vertices(self, p, client: int) -> NDArray[np.float32]:
-        """`(3T, FLOATS_PER_VERTEX)` the body at its pose and colours now, in world coordinates."""
+    def vertices(self, p, client: int, recolour: bool) -> NDArray[np.float32]:
+        """`(3T, FLOATS_PER_VERTEX)` the body at its pose now, in world coordinates; with
+        `recolour`, its colours read again too."""
         position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=client)
-        colours = np.asarray(
-            [data[7][:3] for data in p.getVisualShapeData(self.body, physicsClientId=client)],
-            dtype=np.float32,
-        )
+        if recolour:
+            self.colours = _colours(p.getVisualShapeData(self.body, physicsClientId=client))
         rotation = _rotation(orientation)
         out = np.empty((len(self.mesh.positions), FLOATS_PER_VERTEX), np.float32)
         out[:, 0:3] = self.mesh.positions @ rotation.T + np.asarray(position)
         out[:, 3:6] = self.mesh.normals @ rotation.T
-        out[:, 6:9] = colours[self.mesh.shape] if len(colours) else 0.0
+        out[:, 6:9] = self.colours[self.mesh.shape] if len(self.colours) else 0.0
         out[:, 9] = self.body + 1
         return out
 
 
+def _colours(shape_data) -> NDArray[np.float32]:
+    """`(S, 3)` RGB of each visual shape in pybullet's `getVisualShapeData` answer."""
+    return np.asarray([data[7][:3] for data in shape_data], dtype=np.float32).reshape(-1, 3)
+
+
 class GLRenderer:
     """Draws one pybullet client's bodies: `static` ones (never moved nor recoloured after the
-    renderer is made) into a buffer once; every other body's pose and colours are read again
-    at each `sync`."""
+    renderer is made) into a buffer once, in the order given; every other body's pose is read
+    again at each `sync`, and the colours of those in `recoloured` (signal lamps) too."""
 
-    def __init__(self, p, client: int, static: Sequence[int], lighting: Lighting) -> None:
+    def __init__(
+        self,
+        p,
+        client: int,
+        static: Sequence[int],
+        lighting: Lighting,
+        recoloured: Sequence[int] = (),
+    ) -> None:
         import moderngl
 
         context = _context()
         if context is None:
             raise RuntimeError("no OpenGL context can be made here (moderngl with EGL)")
         self.p, self.client, self.context = p, client, context
-        self.static = frozenset(static)
+        self.static, self.recoloured = frozenset(static), frozenset(recoloured)
         with current(context):
             self.program = context.program(
                 vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER
@@ -266,7 +289,7 @@ class GLRenderer:
             layout = ["in_position", "in_normal", "in_colour", "in_body"]
             static_vertices = np.concatenate(
                 [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
-                + [_Body(p, client, body).vertices(p, client) for body in static]
+                + [_Body(p, client, body).vertices(p, client, False) for body in static]
             )
             self.static_count = len(static_vertices)
             self.static_buffer = context.buffer(static_vertices.tobytes() or b"\0" * 40)
@@ -308,7 +331,7 @@ class GLRenderer:
         moving = [body for body in present if body not in self.static]
         self.bodies = {body: self.bodies.get(body) or _Body(p, client, body) for body in moving}
         parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
-        parts += [self.bodies[body].vertices(p, client) for body in moving]
+        parts += [self.bodies[body].vertices(p, client, body in self.recoloured) for body in moving]
         vertices = np.concatenate(parts)
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
@@ -331,6 +354,7 @@ class GLRenderer:
                 color_attachments=[
                     context.renderbuffer((width, height), components=4),
                     context.renderbuffer((width, height), components=1, dtype="f4"),
+                    context.renderbuffer((width, height), components=1, dtype="f4"),
                 ],
                 depth_attachment=context.depth_renderbuffer((width, height)),
             )
@@ -344,10 +368,13 @@ class GLRenderer:
         width: int,
         height: int,
         segmentation: bool,
+        far_m: float,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
-        """RGB `(H, W, 3)`, the depth buffer `(H, W)` in [0, 1] and, with `segmentation`, the
-        body id per pixel `(H, W)` (-1 for none), for pybullet's column-major `view` and
-        `projection` matrices; row 0 is the top of the image."""
+        """RGB `(H, W, 3)`, the depth along the view axis `(H, W)` in metres (`far_m` where
+        nothing is drawn) and, with `segmentation`, the body id per pixel `(H, W)` (-1 for
+        none), for pybullet's column-major `view` and perspective `projection` matrices; row 0
+        is the top of the image. Depth is the fragment's own (float32), not read back from a
+        depth buffer and linearised: finer than any depth buffer's step, and no CPU work."""
         import moderngl
 
         # drawn upside down (y flipped in clip space), so that OpenGL's bottom-up rows read out
@@ -361,11 +388,10 @@ class GLRenderer:
         with current(self.context):
             framebuffer = self._framebuffer(width, height)
             framebuffer.use()
-            framebuffer.color_mask = ((True, True, True, True), (False, False, False, False))
-            framebuffer.clear(*SKY_RGB, 1.0, depth=1.0)
-            framebuffer.color_mask = ((False, False, False, False), (True, True, True, True))
-            framebuffer.clear(0.0, 0.0, 0.0, 0.0)
-            framebuffer.color_mask = ((True, True, True, True), (True, True, True, True))
+            for attachment, value in enumerate(((*SKY_RGB, 1.0), (0.0,) * 4, (far_m,) * 4)):
+                framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(3))
+                framebuffer.clear(*value, depth=1.0)
+            framebuffer.color_mask = ((True,) * 4,) * 3
             self.context.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
             self.context.front_face = "cw"
             self.program["mvp"].write(matrix.T.astype(np.float32).tobytes())
@@ -377,15 +403,15 @@ class GLRenderer:
             # read into fresh arrays: writable, and no copy of bytes
             rgb = np.empty((height, width, 3), np.uint8)
             framebuffer.read_into(rgb, components=3, attachment=0)
-            depth = np.empty((height, width), np.float32)
-            framebuffer.read_into(depth, components=1, attachment=-1, dtype="f4")
+            depth_m = np.empty((height, width), np.float32)
+            framebuffer.read_into(depth_m, components=1, attachment=2, dtype="f4")
             body = None
             if segmentation:
                 ids = np.empty((height, width), np.float32)
                 framebuffer.read_into(ids, components=1, attachment=1, dtype="f4")
                 body = ids.astype(np.int32)
                 body -= 1
-        return rgb, depth, body
+        return rgb, depth_m, body
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context stays for the process's next world)."""

@@ -168,7 +168,7 @@ class World:
             static = [body for body in self.twin.bodies if body not in lamps]
             kind_rank = {kind: rank for rank, kind in enumerate(GL_DRAW_ORDER)}
             static.sort(key=lambda b: kind_rank.get(self.twin.segmentation[b], len(kind_rank)))
-            self.gl = GLRenderer(self.p, self.client, static, self.lighting)
+            self.gl = GLRenderer(self.p, self.client, static, self.lighting, sorted(lamps))
 
     def replay(self, scenario: Scenario) -> None:
         """Swap in another clip of the same map: its actors replace the previous clip's, the
@@ -349,9 +349,7 @@ class World:
 
         if self.gl is not None:
             self.gl.sync(self.state)
-            rgb, buffer, mask = self.gl.draw(view, projection, width, height, segmentation)
-            depth_m = far_m * near_m / (far_m - (far_m - near_m) * buffer)
-            return Image(rgb, depth_m.astype(np.float32, copy=False), mask)
+            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m))
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
