@@ -2,16 +2,18 @@
 
 pybullet stays the simulator: the renderer reads every body's visual shapes from it once
 (`getVisualShapeData`: the twin's mesh files, the actors' boxes, cylinders and spheres) and its
-poses and colours whenever the world's state changes. The static twin is one vertex buffer in
-world coordinates, the moving bodies and the signal lamps a second one rebuilt per state; a
-frame is one or two draw calls into an offscreen framebuffer holding colour, depth and each
-pixel's body id together, so a segmented image costs one pass (pybullet's plugin draws the
-scene twice for it), and the images come back at the size asked for, as numpy arrays, without
-pybullet's per-pixel copy loops. On llvmpipe a 1600x900 camera image takes about half the CPU
-of pybullet's 1024x576 one, a LiDAR view a quarter (docs/benchmarks.md).
+poses (and the lamps' colours) whenever the world's state changes. The static twin is one vertex
+buffer in world coordinates, the moving bodies and the signal lamps a second one rebuilt per
+state; an image is two draw calls into an offscreen framebuffer that takes colour, each pixel's
+depth along the view axis (written by the fragment shader, in metres) and its body id in one
+pass, read straight into numpy arrays at the size asked for. pybullet's EGL plugin draws at
+most 1024x768, draws the scene twice for a body mask and copies every pixel several times on
+the CPU; on llvmpipe this renderer's 1600x900 camera image costs about two thirds of the CPU of
+the plugin's 1024x576 one, a LiDAR view with body ids a quarter (docs/benchmarks.md).
 
 Shading is Lambertian under the clip's `Lighting`: a neutral ambient share (the sky) plus the
-sun's diffuse share in its colour and from its direction, which pybullet's renderer never took. Pixels are square and unfiltered, as before.
+sun's diffuse share in its colour and from its direction, which pybullet's renderer never took.
+Pixels are square and unfiltered (no antialiasing), as with pybullet's renderers.
 """
 
 from __future__ import annotations
