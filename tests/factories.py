@@ -1,8 +1,9 @@
-"""Small hand-built scenarios and maps for tests."""
+"""Small hand-built scenarios and maps for tests, and helpers shared by the render tests."""
 
 from __future__ import annotations
 
 from datetime import datetime, timezone
+from pathlib import Path
 
 import numpy as np
 
@@ -94,3 +95,24 @@ def assert_sun_matches_label(conditions: Conditions, origin: GeoOrigin) -> None:
         assert -4.0 <= elevation < 15.0, where
     else:
         assert elevation < -4.0, where
+
+
+def synthetic_clip(root: Path) -> tuple[IntersectionMap, Scenario]:
+    """The map and the one clip of a seed-3 synthetic set written under `root`."""
+    from drivee2e_data import pipeline, store
+
+    pipeline.synthesize(root, clips=1, seed=3)
+    scenario = store.read_scenario(root, store.scenario_ids(root)[0])
+    return store.read_map(root, scenario.map_id), scenario
+
+
+def front_view(world, frame: int, size: tuple[int, int] = (160, 90), **options):
+    """`world.render` from the ego's logged pose at `frame`, 1.6 m up, looking along its
+    heading with a 40-degree vertical field of view (the ego hidden, the frame's scene set)."""
+    ego = world.scenario.ego
+    world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+    world.set_time(frame)
+    eye = np.array([ego.x_m[frame], ego.y_m[frame], 1.6])
+    yaw = ego.yaw_rad[frame]
+    target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    return world.render(eye, target, *size, 40.0, **options)

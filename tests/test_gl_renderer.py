@@ -10,6 +10,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.conditions import Lighting
 from drivee2e_data.sim.gl_renderer import SKY_RGB, GLRenderer, gl_available, read_obj
 from drivee2e_data.sim.world import World
+from tests.factories import front_view, synthetic_clip
 
 pytestmark = pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 NOON = Lighting((0.0, 0.0, 1.0), (1.0, 1.0, 1.0), 0.5, 0.5, False)
@@ -78,22 +79,11 @@ def test_obj_files_read_as_the_twin_writes_them(tmp_path):
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
-    from drivee2e_data import pipeline, store
-
-    root = tmp_path_factory.mktemp("gl_site")
-    pipeline.synthesize(root, clips=1, seed=3)
-    scenario = store.read_scenario(root, store.scenario_ids(root)[0])
-    return store.read_map(root, scenario.map_id), scenario
+    return synthetic_clip(tmp_path_factory.mktemp("gl_site"))
 
 
 def _front(world: World, frame: int, segmentation: bool = True):
-    ego = world.scenario.ego
-    world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
-    world.set_time(frame)
-    eye = np.array([ego.x_m[frame], ego.y_m[frame], 1.6])
-    yaw = ego.yaw_rad[frame]
-    target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    return world.render(eye, target, 320, 180, 40.0, segmentation=segmentation, near_m=0.5)
+    return front_view(world, frame, (320, 180), segmentation=segmentation, near_m=0.5)
 
 
 def test_the_gl_world_draws_what_pybullets_egl_renderer_draws(site):

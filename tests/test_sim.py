@@ -11,14 +11,12 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
 from drivee2e_data.sim.world import World, connect
+from tests.factories import front_view, synthetic_clip
 
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
-    root = tmp_path_factory.mktemp("sim")
-    pipeline.synthesize(root, clips=1, seed=3)
-    scenario = store.read_scenario(root, store.scenario_ids(root)[0])
-    return store.read_map(root, scenario.map_id), scenario
+    return synthetic_clip(tmp_path_factory.mktemp("sim"))
 
 
 @pytest.fixture(scope="module")
@@ -282,16 +280,6 @@ def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
             world.replay(other)
 
 
-def _front_view(world: World, scenario, frame: int, size=(160, 90), **options):
-    ego = scenario.ego
-    world.place_ego(ego.x_m[frame], ego.y_m[frame], ego.track_id)
-    world.set_time(frame)
-    eye = np.array([ego.x_m[frame], ego.y_m[frame], 1.6])
-    yaw = ego.yaw_rad[frame]
-    target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
-    return world.render(eye, target, *size, 40.0, **options)
-
-
 def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):
     """pybullet's EGL plugin draws only in the newest client's context: an older world rendering
     after a newer one came and went read back garbage (seen as a collection in a test session
@@ -304,16 +292,16 @@ def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):
     except DriveE2EError:
         pytest.skip("pybullet's EGL plugin does not load here")
     try:
-        before = _front_view(older, scenario, 10)
+        before = front_view(older, 10)
         with World(intersection_map, scenario, renderer="egl"):
             pass
         assert not older.can_render
         with pytest.raises(DriveE2EError, match="superseded"):
-            _front_view(older, scenario, 10)
+            front_view(older, 10)
         fresh = world_for(older, scenario, lambda map_id: intersection_map, "egl")
         assert fresh is not older
         with fresh:
-            assert np.array_equal(_front_view(fresh, scenario, 10).rgb, before.rgb)
+            assert np.array_equal(front_view(fresh, 10).rgb, before.rgb)
     finally:
         older.close()
 
@@ -331,8 +319,8 @@ def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
         assert world.drawn_size(1600, 900) == (1024, 576)
         assert world.drawn_size(1200, 1200) == (768, 768)
         assert world.drawn_size(320, 180) == (320, 180)
-        full = _front_view(world, scenario, 10, (1600, 900), segmentation=True)
-        native = _front_view(world, scenario, 10, (1600, 900), segmentation=True, native=True)
+        full = front_view(world, 10, (1600, 900), segmentation=True)
+        native = front_view(world, 10, (1600, 900), segmentation=True, native=True)
     assert full.rgb.shape == (900, 1600, 3) and native.rgb.shape == (576, 1024, 3)
     rows = ((np.arange(900) + 0.5) * 576 / 900).astype(int)
     columns = ((np.arange(1600) + 0.5) * 1024 / 1600).astype(int)
