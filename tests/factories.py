@@ -116,3 +116,17 @@ def front_view(world, frame: int, size: tuple[int, int] = (160, 90), **options):
     yaw = ego.yaw_rad[frame]
     target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
     return world.render(eye, target, *size, 40.0, **options)
+
+
+def egl_world(intersection_map: IntersectionMap, scenario: Scenario):
+    """A `World` drawn by pybullet's EGL plugin; the test is skipped where the plugin does not
+    load."""
+    import pytest
+
+    from drivee2e_data.errors import DriveE2EError
+    from drivee2e_data.sim.world import World
+
+    try:
+        return World(intersection_map, scenario, renderer="egl")
+    except DriveE2EError:
+        pytest.skip("pybullet's EGL plugin does not load here")

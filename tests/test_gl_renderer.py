@@ -6,11 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.conditions import Lighting
 from drivee2e_data.sim.gl_renderer import SKY_RGB, GLRenderer, gl_available, read_obj
 from drivee2e_data.sim.world import World
-from tests.factories import front_view, synthetic_clip
+from tests.factories import egl_world, front_view, synthetic_clip
 
 pytestmark = pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 NOON = Lighting((0.0, 0.0, 1.0), (1.0, 1.0, 1.0), 0.5, 0.5, False)
@@ -90,10 +89,7 @@ def test_the_gl_world_draws_what_pybullets_egl_renderer_draws(site):
     """The same bodies where pybullet's own renderer puts them: body masks agree on 97% of the
     pixels or more (the rest are silhouettes), depths to 0.5% where both see the same body."""
     intersection_map, scenario = site
-    try:
-        reference = World(intersection_map, scenario, renderer="egl")
-    except DriveE2EError:
-        pytest.skip("pybullet's EGL plugin does not load here")
+    reference = egl_world(intersection_map, scenario)
     with reference:
         for frame in (0, 30):  # pybullet's first EGL draws still upload meshes (bench_render.py)
             _front(reference, frame)

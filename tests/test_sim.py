@@ -11,7 +11,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
 from drivee2e_data.sim.world import World, connect
-from tests.factories import front_view, synthetic_clip
+from tests.factories import egl_world, front_view, synthetic_clip
 
 
 @pytest.fixture(scope="module")
@@ -287,10 +287,7 @@ def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):
     from drivee2e_data.sim.world import world_for
 
     intersection_map, scenario = clip
-    try:
-        older = World(intersection_map, scenario, renderer="egl")
-    except DriveE2EError:
-        pytest.skip("pybullet's EGL plugin does not load here")
+    older = egl_world(intersection_map, scenario)
     try:
         before = front_view(older, 10)
         with World(intersection_map, scenario, renderer="egl"):
@@ -311,10 +308,7 @@ def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
     aspect ratio kept: square pixels) and comes back at 1600x900, its body mask the nearest
     drawn pixel's (the native drawing, resized by index)."""
     intersection_map, scenario = clip
-    try:
-        world = World(intersection_map, scenario, renderer="egl")
-    except DriveE2EError:
-        pytest.skip("pybullet's EGL plugin does not load here")
+    world = egl_world(intersection_map, scenario)
     with world:
         assert world.drawn_size(1600, 900) == (1024, 576)
         assert world.drawn_size(1200, 1200) == (768, 768)
