@@ -68,6 +68,26 @@ def test_a_moved_body_is_drawn_where_it_went_after_a_sync(box_scene):
     assert after[24, 32] == pytest.approx(9.0, abs=1e-4)
 
 
+def test_a_lamp_shines_its_colour_with_the_sun_behind_it(box_scene):
+    """Signal lamps are unshaded: lit from behind, a red lamp still reads pure red, while the
+    cube beside it, a plain body, gets the ambient share only."""
+    p, client, cube, _ = box_scene
+    shape = p.createVisualShape(p.GEOM_SPHERE, radius=0.5, rgbaColor=[1, 0, 0, 1],
+                                physicsClientId=client)  # fmt: skip
+    lamp = p.createMultiBody(0, -1, shape, [10, 0, 1], physicsClientId=client)
+    p.resetBasePositionAndOrientation(cube, [20, 3, 1], [0, 0, 0, 1], physicsClientId=client)
+    behind = Lighting((1.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0.5, 0.5, False)
+    renderer = GLRenderer(p, client, static=[], lighting=behind, lamps=[lamp])
+    renderer.sync(1)
+    view = p.computeViewMatrix([0, 0, 1], [1, 0, 1], [0, 0, 1], physicsClientId=client)
+    projection = p.computeProjectionMatrixFOV(40.0, 1.0, NEAR_M, FAR_M, physicsClientId=client)
+    rgb, _, body = renderer.draw(view, projection, 64, 64, True, FAR_M)
+    renderer.release()
+    assert body[32, 32] == lamp and rgb[32, 32].tolist() == [255, 0, 0]
+    cube_pixels = rgb[body == cube]
+    assert len(cube_pixels) and np.abs(cube_pixels[:, 0].astype(int) - 128).max() <= 1
+
+
 def test_obj_files_read_as_the_twin_writes_them(tmp_path):
     path = tmp_path / "quad.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n")

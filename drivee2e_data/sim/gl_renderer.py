@@ -39,7 +39,8 @@ CYLINDER_SIDES = 16
 # spheres are small here (signal lamps and heads, 12 cm): 80 triangles each, half the twin's
 # crowns' (42 lamps are most of what moves or changes colour)
 SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
-FLOATS_PER_VERTEX = 10  # position (3), normal (3), colour (3), body id + 1 (1)
+FLOATS_PER_VERTEX = 11  # position (3), normal (3), colour (3), body id + 1, emission (0 or 1)
+VERTEX_FORMAT = "3f 3f 3f 1f 1f"
 
 VERTEX_SHADER = """
 #version 330
@@ -48,16 +49,19 @@ in vec3 in_position;
 in vec3 in_normal;
 in vec3 in_colour;
 in float in_body;
+in float in_emission;
 out vec3 normal;
 out vec3 colour;
 out float eye_depth;
 flat out float body;
+flat out float emission;
 void main() {
     gl_Position = mvp * vec4(in_position, 1.0);
     eye_depth = gl_Position.w;  // a perspective projection's w: the depth along the view axis
     normal = in_normal;
     colour = in_colour;
     body = in_body;
+    emission = in_emission;
 }
 """
 FRAGMENT_SHADER = """
@@ -70,12 +74,14 @@ in vec3 normal;
 in vec3 colour;
 in float eye_depth;
 flat in float body;
+flat in float emission;
 layout(location = 0) out vec4 rgba;
 layout(location = 1) out float body_out;
 layout(location = 2) out float depth_out;
 void main() {
     float lambert = max(dot(normalize(normal), light_direction), 0.0);
-    rgba = vec4(min(colour * (ambient + diffuse * lambert * light_rgb), vec3(1.0)), 1.0);
+    vec3 lit = min(colour * (ambient + diffuse * lambert * light_rgb), vec3(1.0));
+    rgba = vec4(mix(lit, colour, emission), 1.0);  // lamps shine their own colour
     body_out = body;
     depth_out = eye_depth;
 }
@@ -244,11 +250,11 @@ class _Body:
         )  # fmt: skip
         self.colours = _colours(shape_data)
 
-    def vertices(self, p, client: int, recolour: bool) -> NDArray[np.float32]:
-        """`(3T, FLOATS_PER_VERTEX)` the body at its pose now, in world coordinates; with
-        `recolour`, its colours read again too."""
+    def vertices(self, p, client: int, lamp: bool) -> NDArray[np.float32]:
+        """`(3T, FLOATS_PER_VERTEX)` the body at its pose now, in world coordinates; a `lamp`
+        has its colours read again and shines them unshaded."""
         position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=client)
-        if recolour:
+        if lamp:
             self.colours = _colours(p.getVisualShapeData(self.body, physicsClientId=client))
         rotation = _rotation(orientation)
         out = np.empty((len(self.mesh.positions), FLOATS_PER_VERTEX), np.float32)
@@ -256,6 +262,7 @@ class _Body:
         out[:, 3:6] = self.mesh.normals @ rotation.T
         out[:, 6:9] = self.colours[self.mesh.shape] if len(self.colours) else 0.0
         out[:, 9] = self.body + 1
+        out[:, 10] = 1.0 if lamp else 0.0
         return out
 
 
@@ -267,7 +274,9 @@ def _colours(shape_data) -> NDArray[np.float32]:
 class GLRenderer:
     """Draws one pybullet client's bodies: `static` ones (never moved nor recoloured after the
     renderer is made) into a buffer once, in the order given; every other body's pose is read
-    again at each `sync`, and the colours of those in `recoloured` (signal lamps) too."""
+    again at each `sync`. `lamps` (signal lamps) have their colours read again too, and shine
+    them whatever the light (a lit lamp facing away from the sun is as bright as one facing
+    it)."""
 
     def __init__(
         self,
@@ -275,7 +284,7 @@ class GLRenderer:
         client: int,
         static: Sequence[int],
         lighting: Lighting,
-        recoloured: Sequence[int] = (),
+        lamps: Sequence[int] = (),
     ) -> None:
         import moderngl
 
@@ -283,24 +292,26 @@ class GLRenderer:
         if context is None:
             raise RuntimeError("no OpenGL context can be made here (moderngl with EGL)")
         self.p, self.client, self.context = p, client, context
-        self.static, self.recoloured = frozenset(static), frozenset(recoloured)
+        self.static, self.lamps = frozenset(static), frozenset(lamps)
         with current(context):
             self.program = context.program(
                 vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER
             )
-            layout = ["in_position", "in_normal", "in_colour", "in_body"]
+            layout = ["in_position", "in_normal", "in_colour", "in_body", "in_emission"]
             static_vertices = np.concatenate(
                 [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
                 + [_Body(p, client, body).vertices(p, client, False) for body in static]
             )
             self.static_count = len(static_vertices)
-            self.static_buffer = context.buffer(static_vertices.tobytes() or b"\0" * 40)
-            self.static_array = context.vertex_array(
-                self.program, [(self.static_buffer, "3f 3f 3f 1f", *layout)]
+            self.static_buffer = context.buffer(
+                static_vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX
             )
-            self.dynamic_buffer = context.buffer(reserve=40, dynamic=True)
+            self.static_array = context.vertex_array(
+                self.program, [(self.static_buffer, VERTEX_FORMAT, *layout)]
+            )
+            self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
             self.dynamic_array = context.vertex_array(
-                self.program, [(self.dynamic_buffer, "3f 3f 3f 1f", *layout)]
+                self.program, [(self.dynamic_buffer, VERTEX_FORMAT, *layout)]
             )
         self.layout = layout
         self.dynamic_count = 0
@@ -333,7 +344,7 @@ class GLRenderer:
         moving = [body for body in present if body not in self.static]
         self.bodies = {body: self.bodies.get(body) or _Body(p, client, body) for body in moving}
         parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
-        parts += [self.bodies[body].vertices(p, client, body in self.recoloured) for body in moving]
+        parts += [self.bodies[body].vertices(p, client, body in self.lamps) for body in moving]
         vertices = np.concatenate(parts)
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
@@ -341,7 +352,7 @@ class GLRenderer:
                 self.dynamic_buffer.release()
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
                 self.dynamic_array = self.context.vertex_array(
-                    self.program, [(self.dynamic_buffer, "3f 3f 3f 1f", *self.layout)]
+                    self.program, [(self.dynamic_buffer, VERTEX_FORMAT, *self.layout)]
                 )
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
