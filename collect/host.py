@@ -63,9 +63,9 @@ def plan(
     renderer: str = "auto",
 ) -> HostPlan:
     """Workers and LiDAR for collecting `clips` clips here with `renderer` (the measurements may
-    be given; "auto" is resolved by trying the renderers, `sim.world.resolve_renderer`). Camera images are
-    finished on the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU
-    (`--post-process cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
+    be given; "auto" is resolved by trying the renderers, `sim.world.resolve_renderer`). Camera
+    images are finished on the CPU wherever: on an H100 host, 16 workers finishing theirs on the
+    GPU (`--post-process cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu

@@ -53,14 +53,9 @@ def render_kinds(world: World, grid: Grid) -> NDArray[np.object_]:
     projection = p.computeProjectionMatrixFOV(
         fov, 1.0, altitude - 100.0, altitude + 100.0, physicsClientId=client
     )
-    if world.gl is not None:
-        world.gl.sync(world.state)
-        seg = world.gl.draw(view, projection, grid.size, grid.size, True, altitude + 100.0)[2]
-    else:
-        renderer = p.ER_BULLET_HARDWARE_OPENGL if world.renderer == "egl" else p.ER_TINY_RENDERER
-        _, _, _, _, seg = p.getCameraImage(grid.size, grid.size, view, projection,
-                                           renderer=renderer, physicsClientId=client)  # fmt: skip
-    body = np.asarray(seg, dtype=np.int64).reshape(grid.size, grid.size) & ((1 << 24) - 1)
+    image = world.draw(view, projection, grid.size, grid.size, True, altitude - 100.0,
+                       altitude + 100.0)  # fmt: skip
+    body = image.segmentation.astype(np.int64) & ((1 << 24) - 1)
     lookup = np.vectorize(lambda b: world.twin.segmentation.get(int(b), ""), otypes=[object])
     return lookup(body)
 

@@ -41,6 +41,7 @@ CYLINDER_SIDES = 16
 SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
 FLOATS_PER_VERTEX = 11  # position (3), normal (3), colour (3), body id + 1, emission (0 or 1)
 VERTEX_FORMAT = "3f 3f 3f 1f 1f"
+VERTEX_INPUTS = ("in_position", "in_normal", "in_colour", "in_body", "in_emission")
 
 VERTEX_SHADER = """
 #version 330
@@ -121,9 +122,10 @@ EGL_DRAW, EGL_READ = 0x3059, 0x305A
 
 @contextmanager
 def current(context) -> Iterator[None]:
-    """`context` (a moderngl context; None: one the block makes) current for the block, and whatever EGL context was current before (pybullet's
-    EGL plugin's, in a process that has both kinds of world) made current again after it: the
-    plugin never makes its own current again, and would draw into ours."""
+    """`context` (a moderngl context; None: one the block makes) current for the block, and
+    whatever EGL context was current before (pybullet's EGL plugin's, in a process that has both
+    kinds of world) made current again after it: the plugin never makes its own current again,
+    and would draw into ours."""
     egl = _libegl()
     saved = None
     if egl is not None and egl.eglGetCurrentContext():
@@ -234,7 +236,10 @@ class _Body:
     """One body's visual shapes in its base frame, and each shape's colour as first read."""
 
     def __init__(self, p, client: int, body: int) -> None:
-        positions, normals, shapes, self.body = [], [], [], body
+        self.body = body
+        # each list starts empty-shaped: a body without visual shapes is an empty mesh
+        positions, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
+        shapes = [np.zeros(0, np.int32)]
         shape_data = p.getVisualShapeData(body, physicsClientId=client)
         for index, data in enumerate(shape_data):
             local_position, local_orientation = data[5], data[6]
@@ -244,10 +249,10 @@ class _Body:
             normals.append(triangle_normals @ rotation.T)
             shapes.append(np.full(len(triangles), index, np.int32))
         self.mesh = _Mesh(
-            np.concatenate(positions).astype(np.float32) if positions else np.zeros((0, 3), np.float32),
-            np.concatenate(normals).astype(np.float32) if normals else np.zeros((0, 3), np.float32),
-            np.concatenate(shapes) if shapes else np.zeros(0, np.int32),
-        )  # fmt: skip
+            np.concatenate(positions).astype(np.float32),
+            np.concatenate(normals).astype(np.float32),
+            np.concatenate(shapes),
+        )
         self.colours = _colours(shape_data)
 
     def vertices(self, p, client: int, lamp: bool) -> NDArray[np.float32]:
@@ -297,7 +302,6 @@ class GLRenderer:
             self.program = context.program(
                 vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER
             )
-            layout = ["in_position", "in_normal", "in_colour", "in_body", "in_emission"]
             static_vertices = np.concatenate(
                 [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
                 + [_Body(p, client, body).vertices(p, client, False) for body in static]
@@ -306,19 +310,18 @@ class GLRenderer:
             self.static_buffer = context.buffer(
                 static_vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX
             )
-            self.static_array = context.vertex_array(
-                self.program, [(self.static_buffer, VERTEX_FORMAT, *layout)]
-            )
+            self.static_array = self._vertex_array(self.static_buffer)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
-            self.dynamic_array = context.vertex_array(
-                self.program, [(self.dynamic_buffer, VERTEX_FORMAT, *layout)]
-            )
-        self.layout = layout
+            self.dynamic_array = self._vertex_array(self.dynamic_buffer)
         self.dynamic_count = 0
         self.bodies: dict[int, _Body] = {}
         self.synced: object = None
         self.framebuffers: dict[tuple[int, int], moderngl.Framebuffer] = {}
         self.set_lighting(lighting)
+
+    def _vertex_array(self, buffer):
+        """The program fed from `buffer`'s vertices (`VERTEX_FORMAT`), in the current context."""
+        return self.context.vertex_array(self.program, [(buffer, VERTEX_FORMAT, *VERTEX_INPUTS)])
 
     def set_lighting(self, lighting: Lighting) -> None:
         with current(self.context):
@@ -351,9 +354,7 @@ class GLRenderer:
                 self.dynamic_array.release()
                 self.dynamic_buffer.release()
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
-                self.dynamic_array = self.context.vertex_array(
-                    self.program, [(self.dynamic_buffer, VERTEX_FORMAT, *self.layout)]
-                )
+                self.dynamic_array = self._vertex_array(self.dynamic_buffer)
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
         self.dynamic_count = len(vertices)

@@ -4,8 +4,9 @@ its logged pose for a frame, and the signals showing their logged states.
 The renderer is chosen at run time: OpenGL through moderngl (`sim/gl_renderer.py`, a GPU or
 Mesa's llvmpipe behind EGL) when a context can be made, else pybullet's own: EGL
 (`ER_BULLET_HARDWARE_OPENGL` through its `eglRenderer` plugin) when that loads, else
-TinyRenderer; the choice is logged once per process. The ego is placed by the caller (logged pose for collection, controlled
-pose for closed loop). Actors farther than `draw_radius_m` from the ego are not drawn.
+TinyRenderer; the choice is logged once per process. The ego is placed by the caller (logged
+pose for collection, controlled pose for closed loop). Actors farther than `draw_radius_m` from
+the ego are not drawn.
 """
 
 from __future__ import annotations
@@ -133,8 +134,11 @@ def _connect(renderer: str) -> tuple[int, str]:
             pybullet.disconnect(client)
             raise DriveE2EError("renderer 'egl': pybullet's eglRenderer plugin did not load here")
     if chosen not in _logged_choice:
-        names = {"gl": f"OpenGL through moderngl ({gl_renderer_name()})",
-                 "egl": "pybullet's EGL plugin", "tiny": "pybullet's TinyRenderer (CPU)"}  # fmt: skip
+        names = {
+            "gl": f"OpenGL through moderngl ({gl_renderer_name()})",
+            "egl": "pybullet's EGL plugin",
+            "tiny": "pybullet's TinyRenderer (CPU)",
+        }
         LOG.info("renderer: %s", names[chosen])
         _logged_choice.add(chosen)
     return client, chosen
@@ -164,7 +168,7 @@ class World:
         self.state = 0  # counts changes to what is drawn (poses, lamps, actors)
         self.replay(scenario)
         if self.renderer == "gl":
-            lamps = {body for lamps in self.twin.lamps.values() for body, _ in lamps}
+            lamps = {body for head in self.twin.lamps.values() for body, _ in head}
             static = [body for body in self.twin.bodies if body not in lamps]
             kind_rank = {kind: rank for rank, kind in enumerate(GL_DRAW_ORDER)}
             static.sort(key=lambda b: kind_rank.get(self.twin.segmentation[b], len(kind_rank)))
@@ -315,7 +319,7 @@ class World:
                 left, right, bottom, top, near_m, far_m, physicsClientId=self.client
             )
         drawn_width, drawn_height = self.drawn_size(width, height)
-        image = self._draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m)
+        image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m)
         if native or (drawn_width, drawn_height) == (width, height):
             return image
         return image.resized(width, height)
@@ -334,7 +338,7 @@ class World:
         scale = min(1.0, EGL_WINDOW_PX[0] / width, EGL_WINDOW_PX[1] / height)
         return round(width * scale), round(height * scale)
 
-    def _draw(
+    def draw(
         self,
         view: list[float],
         projection: list[float],
@@ -344,7 +348,9 @@ class World:
         near_m: float,
         far_m: float,
     ) -> Image:
-        """The image pybullet draws with these matrices at `width` x `height`, depth in metres."""
+        """The image drawn with pybullet's column-major `view` and `projection` matrices at
+        `width` x `height` (pybullet's EGL plugin stretches what exceeds its window; `render`
+        keeps within it), depth in metres."""
         import cv2
 
         if self.gl is not None:
