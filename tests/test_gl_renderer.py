@@ -6,13 +6,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivee2e_data.sim.conditions import Lighting
-from drivee2e_data.sim.gl_renderer import SKY_RGB, GLRenderer, gl_available, read_obj
+from dataclasses import replace
+
+from drivee2e_data.sim.conditions import ShaderLook
+from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available, read_obj
 from drivee2e_data.sim.world import World
 from tests.factories import egl_world, front_view, synthetic_clip
 
 pytestmark = pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
-NOON = Lighting((0.0, 0.0, 1.0), (1.0, 1.0, 1.0), 0.5, 0.5, False)
+SKY_RGB = (0.70, 0.78, 0.90)
+# the sun straight above, ambient 0.5 from every side, a plain sky of one colour, no weather
+NOON = ShaderLook(
+    light_direction=(0.0, 0.0, 1.0), sun_rgb=(0.5, 0.5, 0.5), sky_ambient=(0.5, 0.5, 0.5),
+    ground_ambient=(0.5, 0.5, 0.5), zenith_rgb=SKY_RGB, horizon_rgb=SKY_RGB, cloud_cover=0.0,
+    cloud_rgb=(1.0, 1.0, 1.0), sun_disc=0.0, shadows=False, fog_rgb=(0.8, 0.8, 0.8),
+    fog_density=0.0, wetness=0.0, lamps_on=False, headlights=False,
+)  # fmt: skip
 NEAR_M, FAR_M = 0.5, 200.0
 
 
@@ -27,7 +36,7 @@ def box_scene():
         pybullet.GEOM_BOX, halfExtents=[1, 1, 1], rgbaColor=[1, 0, 0, 1], physicsClientId=client
     )
     cube = pybullet.createMultiBody(0, -1, shape, [20, 0, 1], physicsClientId=client)
-    renderer = GLRenderer(pybullet, client, static=[], lighting=NOON)
+    renderer = GLRenderer(pybullet, client, [], NOON)
     yield pybullet, client, cube, renderer
     renderer.release()
     pybullet.disconnect(client)
@@ -76,8 +85,8 @@ def test_a_lamp_shines_its_colour_with_the_sun_behind_it(box_scene):
                                 physicsClientId=client)  # fmt: skip
     lamp = p.createMultiBody(0, -1, shape, [10, 0, 1], physicsClientId=client)
     p.resetBasePositionAndOrientation(cube, [20, 3, 1], [0, 0, 0, 1], physicsClientId=client)
-    behind = Lighting((1.0, 0.0, 0.0), (1.0, 1.0, 1.0), 0.5, 0.5, False)
-    renderer = GLRenderer(p, client, static=[], lighting=behind, lamps=[lamp])
+    behind = replace(NOON, light_direction=(1.0, 0.0, 0.0))
+    renderer = GLRenderer(p, client, [], behind, lamps=[lamp])
     renderer.sync(1)
     view = p.computeViewMatrix([0, 0, 1], [1, 0, 1], [0, 0, 1], physicsClientId=client)
     projection = p.computeProjectionMatrixFOV(40.0, 1.0, NEAR_M, FAR_M, physicsClientId=client)
@@ -141,14 +150,15 @@ def test_the_same_frame_is_the_same_image_twice_and_in_another_world(site):
 
 
 def test_the_clips_lighting_shades_the_gl_world(site):
-    """The world's `Lighting` reaches the image: a low, warm sun from another side changes it,
-    and the clip's own light brings the first image back."""
+    """The world's `ShaderLook` reaches the image: a low, warm sun from another side changes
+    it, and the clip's own look brings the first image back."""
     intersection_map, scenario = site
     with World(intersection_map, scenario, renderer="gl") as world:
         first = _front(world, 0, segmentation=False).rgb
-        world.gl.set_lighting(Lighting((0.0, -0.97, 0.26), (1.0, 0.78, 0.55), 0.3, 0.9, False))
+        warm_sun = replace(world.look, light_direction=(0.0, -0.97, 0.26), sun_rgb=(0.9, 0.7, 0.5))
+        world.gl.set_look(warm_sun)
         warm = _front(world, 0, segmentation=False).rgb
-        world.gl.set_lighting(world.lighting)
+        world.gl.set_look(world.look)
         again = _front(world, 0, segmentation=False).rgb
     assert np.array_equal(again, first)
     difference = warm.astype(int) - first.astype(int)

@@ -33,4 +33,5 @@ def top_view(
         far_m=ALTITUDE_M + 20.0,
         near_m=ALTITUDE_M - 60.0,
         up=ego_to_world[:3, 0],
+        look="plain",
     ).rgb

@@ -71,7 +71,9 @@ def has_headlights(camera: Camera) -> bool:
 def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.uint8]:
     """The view's RGB at the camera's size under the clip's weather and light, its noise seeded
     by scenario, frame and camera (the same image however often the frame is made); headlights
-    on the front camera. The weather is applied as drawn, before resizing (fewer pixels)."""
+    on the front camera. The weather is applied as drawn, before resizing (fewer pixels); the
+    GL renderer's shaders draw fog, wet roads and night light themselves, so its images get
+    only the rain's streaks and the low-light noise here."""
     import cv2
 
     scenario = world.scenario
@@ -82,6 +84,7 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
         world.lighting,
         noise_seed(scenario.scenario_id, frame, view.camera),
         headlights=has_headlights(view.camera),
+        shaded=world.renderer == "gl",
     )
     size = (view.camera.width, view.camera.height)
     if rgb.shape[1::-1] == size:

@@ -70,7 +70,7 @@ def finish(world: World, views: list[CameraFrame], frame: int, device: str) -> l
         image = conditions_torch.post_process(
             rgb, depth, scenario.conditions, world.lighting,
             noise_seed(scenario.scenario_id, frame, view.camera),
-            headlights=has_headlights(view.camera),
+            headlights=has_headlights(view.camera), shaded=world.renderer == "gl",
         )  # fmt: skip
         chw = image.permute(2, 0, 1)
         size = (view.camera.height, view.camera.width)

@@ -175,6 +175,7 @@ def depth_sweep(
             near_m=NEAR_M,
             up=rotation[:, 2],
             frustum=geometry.frustum,
+            look="labels",
         )
         depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples, surface)
         distance[samples.beams] = depth / samples.along

@@ -1,17 +1,27 @@
 """Actor blueprints: a shape per class and size, coloured deterministically per track.
 
 The annotation box of an actor is its blueprint's box (as the paper adjusts boxes to the asset
-used); the source's size is kept beside it, so the size error can be reported.
+used); the source's size is kept beside it, so the size error can be reported. The GL renderer
+draws each actor's procedural model (`sim.models`); the pybullet body carries the model's
+shape as a compound of convex parts (what LiDAR rays hit) and, for pybullet's own renderers,
+the simple boxes of before as its visual shape.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
+import zlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivee2e_data.scenario import AgentClass, Track
+from drivee2e_data.sim.models import ModelMesh
+
+SLICES = 6  # a model's rigid body is cut into this many slabs along its longest axis, each hulled
 
 # (name, length, width, height) of the blueprints; a track takes the nearest of its class.
 BLUEPRINTS: dict[AgentClass, tuple[tuple[str, float, float, float], ...]] = {
@@ -59,8 +69,50 @@ def choose_blueprint(track: Track) -> Blueprint:
     return Blueprint(name, (float(size[0]), float(size[1]), float(size[2])), rgba)
 
 
-def create_actor(client: int, blueprint: Blueprint) -> int:
-    """A pybullet body for the blueprint, its origin at the box centre."""
+def convex_parts(model: ModelMesh) -> list[NDArray[np.float64]]:
+    """The model as convex pieces `(V_k, 3)`: each moving joint's vertices (a wheel, a limb),
+    and the rigid body in `SLICES` slabs along its longest axis (a car's hood, cabin and boot
+    each hulled apart, so the hull does not fill the air over the hood)."""
+    positions = model.positions.astype(np.float64).reshape(-1, 3, 3)
+    joints = model.joints[::3]
+    parts = []
+    for joint in np.unique(joints):
+        triangles = positions[joints == joint]
+        if joint != 0:
+            parts.append(triangles.reshape(-1, 3))
+            continue
+        extent = triangles.reshape(-1, 3).max(axis=0) - triangles.reshape(-1, 3).min(axis=0)
+        axis = int(np.argmax(extent))
+        centres = triangles.mean(axis=1)[:, axis]
+        edges = np.linspace(centres.min(), centres.max() + 1e-9, SLICES + 1)
+        for low, high in itertools.pairwise(edges):
+            chosen = triangles[(centres >= low) & (centres < high)]
+            if len(chosen):
+                parts.append(chosen.reshape(-1, 3))
+    return [part for part in parts if len(part) >= 4]
+
+
+def _part_files(model: ModelMesh, folder: Path) -> list[str]:
+    """OBJ files of the model's convex parts (their triangles; pybullet hulls a mesh shape's
+    vertices), written once per shape into `folder`."""
+    parts = convex_parts(model)
+    key = zlib.crc32(model.positions.tobytes())
+    names = []
+    for index, part in enumerate(parts):
+        path = folder / f"actor_{key:08x}_{index:02d}.obj"
+        if not path.exists():
+            lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in part]
+            lines += [f"f {k + 1} {k + 2} {k + 3}" for k in range(0, len(part) - 2, 3)]
+            path.write_text("\n".join(lines) + "\n")
+        names.append(str(path))
+    return names
+
+
+def create_actor(client: int, blueprint: Blueprint, model: ModelMesh | None = None,
+                 folder: Path | None = None) -> int:  # fmt: skip
+    """A pybullet body for the blueprint, its origin at the box centre: its visual shape the
+    blueprint's boxes (pybullet's renderers), its collision shape the `model`'s convex parts
+    (files written into `folder`) or, without a model, the same boxes."""
     import pybullet
 
     length, width, height = blueprint.size_m
@@ -89,8 +141,15 @@ def create_actor(client: int, blueprint: Blueprint) -> int:
         **geometry,
     )
     # LiDAR rays hit what the cameras see (and what the depth-image LiDAR reads): the
-    # collision shapes are the visual ones; the annotation box stays the blueprint's box
-    collision = pybullet.createCollisionShapeArray(
-        collisionFramePositions=[list(o) for o in offsets], **geometry
-    )
+    # collision shapes are the model's; the annotation box stays the blueprint's box
+    if model is not None and folder is not None:
+        files = _part_files(model, folder)
+        collision = pybullet.createCollisionShapeArray(
+            shapeTypes=[pybullet.GEOM_MESH] * len(files), fileNames=files,
+            meshScales=[[1.0, 1.0, 1.0]] * len(files), physicsClientId=client,
+        )  # fmt: skip
+    else:
+        collision = pybullet.createCollisionShapeArray(
+            collisionFramePositions=[list(o) for o in offsets], **geometry
+        )
     return pybullet.createMultiBody(0, collision, visual, [0, 0, -100], physicsClientId=client)

@@ -1,7 +1,9 @@
 """Light and weather: the sun's direction from the clip's UTC time and the map's WGS84 origin,
-light colour and ambient per weather and time of day, and post-processing of a rendered image
-with its depth buffer (fog, rain streaks and wet-road darkening, low light with noise and
-headlight falloff at night). Deterministic: noise and streaks come from a seed.
+light colour and ambient per weather and time of day, what the GL renderer's shaders draw of
+them (`ShaderLook`: sky, clouds, shadows, fog, wet surfaces, street lamps and headlights), and
+the post-processing of a rendered image: everything for pybullet's renderers (fog, rain streaks
+and wet-road darkening, low light with noise and headlight falloff at night), only rain streaks
+and sensor noise for the GL renderer. Deterministic: noise and streaks come from a seed.
 """
 
 from __future__ import annotations
@@ -64,13 +66,18 @@ def post_process(
     light: Lighting,
     seed: int,
     headlights: bool = False,
+    shaded: bool = False,
 ) -> NDArray[np.uint8]:
-    """The weather and light of `conditions` applied to an image with its metric depth.
+    """The weather and light of `conditions` applied to an image with its metric depth; with
+    `shaded` (the GL renderer drew fog, wet surfaces and night light already), only the rain's
+    streaks and the low-light sensor noise.
 
     By day the work stays in 8 bits with OpenCV's fused operations (a 1600x900 image takes a
     few milliseconds); night, with its gain, headlights and noise, goes through floats."""
     import cv2
 
+    if shaded:
+        return _sensor_effects(rgb, conditions, light, seed)
     visibility = VISIBILITY_M[conditions.weather]
     wet = conditions.weather in (Weather.RAIN, Weather.WET)
     if visibility is None and not wet and not light.night:
@@ -188,3 +195,116 @@ def rain_streaks(shape: tuple[int, int], rng: np.random.Generator) -> NDArray[np
         cv2.line(streaks, (x, y), (x + length // 6, y + length), 1.0, 1, cv2.LINE_AA)
     streaks *= RAIN_OPACITY
     return streaks
+
+
+def _sensor_effects(
+    rgb: NDArray[np.uint8], conditions: Conditions, light: Lighting, seed: int
+) -> NDArray[np.uint8]:
+    """What the camera adds over a shaded image: noise in low light, streaks in rain."""
+    rng = np.random.default_rng(seed)
+    image = rgb
+    if light.night:
+        noisy = rgb.astype(np.float32)
+        noisy += sensor_noise(noisy.shape, rng) * np.float32(NIGHT_NOISE_SIGMA)
+        np.clip(noisy, 0, 255, out=noisy)
+        image = noisy.astype(np.uint8)
+    if conditions.weather == Weather.RAIN:
+        image = _rain(np.ascontiguousarray(image), rng)
+    return image
+
+
+# The shaders' look per weather and time of day. Colours are linear-ish RGB in [0, 1]; values
+# were set by eye against photographs of streets under each condition, keeping a clear day's
+# brightness near the plain Lambert shading that came before (ambient + diffuse about 1).
+CLOUD_COVER = {Weather.CLEAR: 0.12, Weather.CLOUDY: 0.55, Weather.OVERCAST: 0.95,
+               Weather.RAIN: 1.0, Weather.FOG: 1.0, Weather.WET: 0.45}  # fmt: skip
+WETNESS = {Weather.RAIN: 1.0, Weather.WET: 0.7}
+SUN_SHADOWS = (Weather.CLEAR, Weather.CLOUDY, Weather.WET)  # a visible sun casts shadows
+DAY_ZENITH, DAY_HORIZON = (0.28, 0.47, 0.82), (0.74, 0.81, 0.90)
+LOW_SUN_ZENITH, LOW_SUN_HORIZON = (0.33, 0.42, 0.66), (0.96, 0.72, 0.50)
+GREY_SKY = {Weather.OVERCAST: (0.66, 0.68, 0.71), Weather.RAIN: (0.50, 0.52, 0.55),
+            Weather.FOG: (0.78, 0.79, 0.80)}  # fmt: skip
+NIGHT_ZENITH, NIGHT_HORIZON = (0.012, 0.016, 0.04), (0.09, 0.08, 0.085)  # city glow low down
+NIGHT_AMBIENT = (0.045, 0.05, 0.07)
+MOONLIGHT_RGB = (0.05, 0.055, 0.075)
+STREET_LAMP_RGB = (1.0, 0.78, 0.48)  # high-pressure sodium and warm LED: orange-white
+STREET_LAMP_REACH_M = 14.0
+HEADLIGHT_RGB = (1.1, 1.05, 0.95)
+HEADLIGHT_REACH_M = 45.0
+LAMPS_ON_BELOW_RAD = math.radians(3.0)  # street lamps switch on when the sun sinks below this
+HEADLIGHTS_BELOW_RAD = math.radians(10.0)  # drivers turn headlights on at dusk
+
+
+@dataclass(frozen=True)
+class ShaderLook:
+    """The GL renderer's uniforms for one clip's conditions (`sim/shaders/*.glsl`)."""
+
+    light_direction: tuple[float, float, float]
+    sun_rgb: tuple[float, float, float]
+    sky_ambient: tuple[float, float, float]
+    ground_ambient: tuple[float, float, float]
+    zenith_rgb: tuple[float, float, float]
+    horizon_rgb: tuple[float, float, float]
+    cloud_cover: float
+    cloud_rgb: tuple[float, float, float]
+    sun_disc: float
+    shadows: bool
+    fog_rgb: tuple[float, float, float]
+    fog_density: float  # per metre: 3 / visibility (contrast 5% at the visibility distance)
+    wetness: float
+    lamps_on: bool  # street lamps and lit windows
+    headlights: bool  # vehicles' headlights (dusk, night, fog)
+    lamp_rgb: tuple[float, float, float] = STREET_LAMP_RGB
+    lamp_reach_m: float = STREET_LAMP_REACH_M
+    spot_rgb: tuple[float, float, float] = HEADLIGHT_RGB
+    spot_reach_m: float = HEADLIGHT_REACH_M
+
+    def plain(self) -> ShaderLook:
+        """The same sun without weather or night: the top view's look (a map to read)."""
+        from dataclasses import replace
+
+        day_sun = tuple(float(v) for v in np.maximum(self.sun_rgb, 0.45))
+        return replace(self, fog_density=0.0, wetness=0.0, lamps_on=False, headlights=False,
+                       sky_ambient=(0.6, 0.6, 0.62), ground_ambient=(0.45, 0.45, 0.45),
+                       sun_rgb=day_sun)  # fmt: skip
+
+
+def _scaled(rgb: tuple[float, float, float], factor: float) -> tuple[float, float, float]:
+    return (rgb[0] * factor, rgb[1] * factor, rgb[2] * factor)
+
+
+def shader_look(conditions: Conditions, origin: GeoOrigin) -> ShaderLook:
+    """The shaders' sky, light and weather for `conditions` at `origin`."""
+    light = lighting(conditions, origin)
+    _, elevation = sun_position(conditions.start_time_utc, origin)
+    weather = conditions.weather
+    visibility = VISIBILITY_M[weather]
+    fog_density = 0.0 if visibility is None else 3.0 / visibility
+    wetness = WETNESS.get(weather, 0.0)
+    grey = GREY_SKY.get(weather)
+    cover = CLOUD_COVER[weather]
+    if light.night:
+        fog = tuple(float(v) for v in FOG_RGB / 255.0 * NIGHT_GAIN * 0.6)
+        return ShaderLook(
+            (0.3, 0.2, 0.93), MOONLIGHT_RGB, NIGHT_AMBIENT, _scaled(NIGHT_AMBIENT, 0.6),
+            NIGHT_ZENITH, NIGHT_HORIZON, cover, (0.07, 0.07, 0.08), 0.0, False, fog,
+            fog_density, wetness, True, True,
+        )  # fmt: skip
+    low_sun = elevation < math.radians(15)
+    zenith, horizon = (LOW_SUN_ZENITH, LOW_SUN_HORIZON) if low_sun else (DAY_ZENITH, DAY_HORIZON)
+    dim = float(np.clip((elevation + math.radians(4)) / math.radians(14), 0.25, 1.0))
+    if grey is not None:
+        zenith = horizon = _scaled(grey, dim)
+    else:
+        zenith, horizon = _scaled(zenith, dim), _scaled(horizon, dim)
+    sun_rgb = _scaled(light.colour, light.diffuse * dim)
+    ambient = light.ambient * dim
+    sky_ambient = (ambient * 0.95, ambient * 1.0, ambient * 1.08)
+    cloud_rgb = _scaled((0.92, 0.92, 0.94) if grey is None else grey, dim)
+    fog = tuple(float(v) for v in FOG_RGB / 255.0 * dim)
+    return ShaderLook(
+        light.direction, sun_rgb, sky_ambient, _scaled(sky_ambient, 0.7), zenith, horizon, cover,
+        cloud_rgb, 1.0 if grey is None else 0.0, weather in SUN_SHADOWS, fog, fog_density,
+        wetness, elevation < LAMPS_ON_BELOW_RAD,
+        elevation < HEADLIGHTS_BELOW_RAD or weather == Weather.FOG,
+    )  # fmt: skip

@@ -31,13 +31,15 @@ BLEND_EPSILON = 1e-5  # OpenCV's blendLinear divides by w1 + w2 + 1e-5
 
 
 def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: int,
-                 headlights: bool = False):  # fmt: skip
+                 headlights: bool = False, shaded: bool = False):  # fmt: skip
     """`rgb` (H, W, 3) uint8 and `depth_m` (H, W) float32 tensors on one device -> (H, W, 3)
-    uint8 on that device, under the weather and light of `conditions`."""
+    uint8 on that device, under the weather and light of `conditions`; with `shaded` (the GL
+    renderer drew them), only the rain's streaks and the low-light noise (as
+    `conditions.post_process`)."""
     import torch
 
-    visibility = VISIBILITY_M[conditions.weather]
-    wet = conditions.weather in (Weather.RAIN, Weather.WET)
+    visibility = None if shaded else VISIBILITY_M[conditions.weather]
+    wet = not shaded and conditions.weather in (Weather.RAIN, Weather.WET)
     if visibility is None and not wet and not light.night:
         return rgb
     rng = np.random.default_rng(seed)
@@ -54,8 +56,8 @@ def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: in
         fog = torch.as_tensor(fog_rgb, device=image.device)
         image = _blend(image, fog, transmission)
     if light.night:
-        night = image.float() * NIGHT_GAIN
-        if headlights:
+        night = image.float() * (1.0 if shaded else NIGHT_GAIN)
+        if headlights and not shaded:
             night = night * _headlight_gain(depth_m)[..., None]
         start = noise_offset(night.numel(), rng)
         if start is None:

@@ -54,7 +54,7 @@ def render_kinds(world: World, grid: Grid) -> NDArray[np.object_]:
         fov, 1.0, altitude - 100.0, altitude + 100.0, physicsClientId=client
     )
     image = world.draw(view, projection, grid.size, grid.size, True, altitude - 100.0,
-                       altitude + 100.0)  # fmt: skip
+                       altitude + 100.0, look="labels")  # fmt: skip
     body = image.segmentation.astype(np.int64) & ((1 << 24) - 1)
     lookup = np.vectorize(lambda b: world.twin.segmentation.get(int(b), ""), otypes=[object])
     return lookup(body)

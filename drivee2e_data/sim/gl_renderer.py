@@ -22,7 +22,7 @@ import ctypes
 import ctypes.util
 import functools
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,63 +30,39 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim.conditions import Lighting
-from drivee2e_data.sim.twin import box_mesh, prism_mesh, sphere_mesh
+from drivee2e_data.sim.conditions import ShaderLook
+from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
+from drivee2e_data.sim.twin import TwinMesh, WearRaster, box_mesh, prism_mesh, sphere_mesh
 
 LOG = logging.getLogger(__name__)
-SKY_RGB = (0.70, 0.78, 0.90)  # background where nothing is drawn
+SHADER_DIR = Path(__file__).with_name("shaders")
+CLEAR_RGB = (0.70, 0.78, 0.90)  # background of a view without a sky (labels)
 CYLINDER_SIDES = 16
 # spheres are small here (signal lamps and heads, 12 cm): 80 triangles each, half the twin's
 # crowns' (42 lamps are most of what moves or changes colour)
 SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
-FLOATS_PER_VERTEX = 11  # position (3), normal (3), colour (3), body id + 1, emission (0 or 1)
-VERTEX_FORMAT = "3f 3f 3f 1f 1f"
-VERTEX_INPUTS = ("in_position", "in_normal", "in_colour", "in_body", "in_emission")
+# position (3), normal (3), colour (3), body id + 1, emission (0..1), material (`Material`)
+FLOATS_PER_VERTEX = 12
+VERTEX_FORMAT = "3f 3f 3f 1f 1f 1f"
+VERTEX_INPUTS = ("in_position", "in_normal", "in_colour", "in_body", "in_emission", "in_material")
+POSITION_ONLY = f"3f {4 * (FLOATS_PER_VERTEX - 3)}x"  # the shadow pass reads positions alone
+LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's daylight; ids only
+# The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
+# shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
+SHADOW_MAP_PX = 2048
+SHADOW_HALF_WIDTH_M = 75.0
+SHADOW_DEPTH_M = 600.0
+MAX_LAMPS, MAX_SPOTS = 16, 12  # the shaders' arrays (scene.frag's MAX_LAMPS, MAX_SPOTS)
+HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
 
-VERTEX_SHADER = """
-#version 330
-uniform mat4 mvp;
-in vec3 in_position;
-in vec3 in_normal;
-in vec3 in_colour;
-in float in_body;
-in float in_emission;
-out vec3 normal;
-out vec3 colour;
-out float eye_depth;
-flat out float body;
-flat out float emission;
-void main() {
-    gl_Position = mvp * vec4(in_position, 1.0);
-    eye_depth = gl_Position.w;  // a perspective projection's w: the depth along the view axis
-    normal = in_normal;
-    colour = in_colour;
-    body = in_body;
-    emission = in_emission;
-}
-"""
-FRAGMENT_SHADER = """
-#version 330
-uniform vec3 light_direction;
-uniform vec3 light_rgb;
-uniform float ambient;
-uniform float diffuse;
-in vec3 normal;
-in vec3 colour;
-in float eye_depth;
-flat in float body;
-flat in float emission;
-layout(location = 0) out vec4 rgba;
-layout(location = 1) out float body_out;
-layout(location = 2) out float depth_out;
-void main() {
-    float lambert = max(dot(normalize(normal), light_direction), 0.0);
-    vec3 lit = min(colour * (ambient + diffuse * lambert * light_rgb), vec3(1.0));
-    rgba = vec4(mix(lit, colour, emission), 1.0);  // lamps shine their own colour
-    body_out = body;
-    depth_out = eye_depth;
-}
-"""
+
+def shader_source(name: str) -> str:
+    """A shader file's text; the fragment shaders of the sky and the scene begin with
+    common.glsl's (noise, sky colour)."""
+    text = (SHADER_DIR / name).read_text()
+    if name in ("sky.frag", "scene.frag"):
+        return "#version 330\n" + (SHADER_DIR / "common.glsl").read_text() + text
+    return text
 
 
 @functools.cache
@@ -268,6 +244,7 @@ class _Body:
         out[:, 6:9] = self.colours[self.mesh.shape] if len(self.colours) else 0.0
         out[:, 9] = self.body + 1
         out[:, 10] = 1.0 if lamp else 0.0
+        out[:, 11] = float(Material.LAMP if lamp else Material.MATTE)
         return out
 
 
@@ -276,20 +253,95 @@ def _colours(shape_data) -> NDArray[np.float32]:
     return np.asarray([data[7][:3] for data in shape_data], dtype=np.float32).reshape(-1, 3)
 
 
+def static_vertices(meshes: Sequence[TwinMesh]) -> NDArray[np.float32]:
+    """`(3T, FLOATS_PER_VERTEX)` the twin's meshes as one vertex soup, in the order given."""
+    parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
+    for mesh in meshes:
+        positions, normals = _flat_triangles(mesh.vertices, mesh.indices, mesh.normals)
+        out = np.empty((len(positions), FLOATS_PER_VERTEX), np.float32)
+        out[:, 0:3], out[:, 3:6] = positions, normals
+        out[:, 6:9] = mesh.rgba[:3]
+        out[:, 9] = mesh.body + 1
+        out[:, 10] = 0.0
+        out[:, 11] = float(mesh.material)
+        parts.append(out)
+    return np.concatenate(parts)
+
+
+def model_vertices(
+    model: ModelMesh,
+    animation: Animation,
+    position: Sequence[float],
+    orientation: Sequence[float],
+    body: int,
+) -> NDArray[np.float32]:
+    """`(N, FLOATS_PER_VERTEX)` a posed model placed at a body's pose (pybullet's position and
+    quaternion), in world coordinates."""
+    local_positions, local_normals, emission = pose(model, animation)
+    rotation = _rotation(orientation).astype(np.float32)
+    out = np.empty((len(local_positions), FLOATS_PER_VERTEX), np.float32)
+    out[:, 0:3] = local_positions @ rotation.T + np.asarray(position, np.float32)
+    out[:, 3:6] = local_normals @ rotation.T
+    out[:, 6:9] = model.colours
+    out[:, 9] = body + 1
+    out[:, 10] = emission
+    out[:, 11] = model.materials
+    return out
+
+
+def look_at(eye: NDArray[np.float64], target: NDArray[np.float64], up: NDArray[np.float64]):
+    """4x4 view matrix (OpenGL convention: the camera looks down its -z)."""
+    forward = target - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = right, true_up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye
+    return view
+
+
+def shadow_matrix(light_direction: Sequence[float], centre_xy: Sequence[float]) -> NDArray:
+    """4x4 world to the shadow map's clip space: an orthographic view from the sun over a
+    square `2 SHADOW_HALF_WIDTH_M` wide around `centre_xy`."""
+    towards_sun = np.asarray(light_direction, dtype=np.float64)
+    towards_sun /= np.linalg.norm(towards_sun)
+    centre = np.array([centre_xy[0], centre_xy[1], 0.0])
+    up = np.array([0.0, 1.0, 0.0]) if abs(towards_sun[2]) > 0.99 else np.array([0.0, 0.0, 1.0])
+    view = look_at(centre + 0.5 * SHADOW_DEPTH_M * towards_sun, centre, up)
+    half, depth = SHADOW_HALF_WIDTH_M, SHADOW_DEPTH_M
+    projection = np.diag([1.0 / half, 1.0 / half, -2.0 / depth, 1.0])
+    projection[2, 3] = -1.0
+    return projection @ view
+
+
+@dataclass(frozen=True)
+class SceneLights:
+    """What lights the scene at one state besides the sun: street lamps near the focus and the
+    vehicles' headlights (position and unit direction, world frame)."""
+
+    focus_xy_m: tuple[float, float] = (0.0, 0.0)
+    headlights: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
+
+
 class GLRenderer:
-    """Draws one pybullet client's bodies: `static` ones (never moved nor recoloured after the
-    renderer is made) into a buffer once, in the order given; every other body's pose is read
-    again at each `sync`. `lamps` (signal lamps) have their colours read again too, and shine
-    them whatever the light (a lit lamp facing away from the sun is as bright as one facing
-    it)."""
+    """Draws one pybullet client's world: the twin's `static_meshes` into a buffer once (in the
+    order given); every other body's pose read again at each `sync`, drawn from its procedural
+    model where it has one (`set_models`: the actors, posed by their `Animation`), else from
+    its pybullet visual shapes. `lamps` (signal lamps) have their colours read again too, and
+    shine them whatever the light. The shaders (`sim/shaders`) draw materials, the sky, the
+    sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`."""
 
     def __init__(
         self,
         p,
         client: int,
-        static: Sequence[int],
-        lighting: Lighting,
+        static_meshes: Sequence[TwinMesh],
+        look: ShaderLook,
         lamps: Sequence[int] = (),
+        street_lamps: Sequence[tuple[float, float, float]] = (),
+        wear: WearRaster | None = None,
     ) -> None:
         import moderngl
 
@@ -297,67 +349,161 @@ class GLRenderer:
         if context is None:
             raise RuntimeError("no OpenGL context can be made here (moderngl with EGL)")
         self.p, self.client, self.context = p, client, context
-        self.static, self.lamps = frozenset(static), frozenset(lamps)
+        self.static = frozenset(mesh.body for mesh in static_meshes)
+        self.lamps = frozenset(lamps)
+        self.street_lamps = np.asarray(street_lamps, dtype=np.float64).reshape(-1, 3)
         with current(context):
-            self.program = context.program(
-                vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER
-            )
-            static_vertices = np.concatenate(
-                [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
-                + [_Body(p, client, body).vertices(p, client, False) for body in static]
-            )
-            self.static_count = len(static_vertices)
-            self.static_buffer = context.buffer(
-                static_vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX
-            )
-            self.static_array = self._vertex_array(self.static_buffer)
+            self.program = context.program(vertex_shader=shader_source("scene.vert"),
+                                           fragment_shader=shader_source("scene.frag"))  # fmt: skip
+            self.labels_program = context.program(vertex_shader=shader_source("scene.vert"),
+                                                  fragment_shader=shader_source("labels.frag"))  # fmt: skip
+            self.sky_program = context.program(vertex_shader=shader_source("sky.vert"),
+                                               fragment_shader=shader_source("sky.frag"))  # fmt: skip
+            self.shadow_program = context.program(vertex_shader=shader_source("shadow.vert"),
+                                                  fragment_shader=shader_source("shadow.frag"))  # fmt: skip
+            vertices = static_vertices(static_meshes)
+            self.static_count = len(vertices)
+            self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
-            self.dynamic_array = self._vertex_array(self.dynamic_buffer)
+            self._make_arrays()
+            corners = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
+            self.sky_buffer = context.buffer(corners.tobytes())
+            self.sky_array = context.vertex_array(
+                self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
+            )
+            self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
+            self.shadow_texture.compare_func = "<="
+            self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self.shadow_framebuffer = context.framebuffer(depth_attachment=self.shadow_texture)
+            self.wear_texture = _wear_texture(context, wear)
+        self.wear = wear
         self.dynamic_count = 0
         self.bodies: dict[int, _Body] = {}
+        self.models: dict[int, ModelMesh] = {}
+        self.posed: dict[
+            int, tuple[Animation, NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
+        ] = {}
         self.synced: object = None
+        self.shadowed: object = None
+        self.lights = SceneLights()
         self.framebuffers: dict[tuple[int, int], moderngl.Framebuffer] = {}
-        self.set_lighting(lighting)
+        self.set_look(look)
 
-    def _vertex_array(self, buffer):
-        """The program fed from `buffer`'s vertices (`VERTEX_FORMAT`), in the current context."""
-        return self.context.vertex_array(self.program, [(buffer, VERTEX_FORMAT, *VERTEX_INPUTS)])
+    def _make_arrays(self) -> None:
+        """The programs' vertex arrays over the static and dynamic buffers (current context)."""
+        self.arrays = {}
+        for name, buffer in (("static", self.static_buffer), ("dynamic", self.dynamic_buffer)):
+            for program_name, program in (("scene", self.program), ("labels", self.labels_program)):
+                self.arrays[(name, program_name)] = self.context.vertex_array(
+                    program, [(buffer, VERTEX_FORMAT, *VERTEX_INPUTS)], skip_errors=True
+                )
+            self.arrays[(name, "shadow")] = self.context.vertex_array(
+                self.shadow_program, [(buffer, POSITION_ONLY, "in_position")]
+            )
 
-    def set_lighting(self, lighting: Lighting) -> None:
-        with current(self.context):
-            self.program["light_direction"].value = tuple(float(v) for v in lighting.direction)
-            self.program["light_rgb"].value = tuple(float(v) for v in lighting.colour)
-            self.program["ambient"].value = float(lighting.ambient)
-            self.program["diffuse"].value = float(lighting.diffuse)
+    def set_look(self, look: ShaderLook) -> None:
+        """The clip's sky, light and weather (the uniforms of `sim/shaders`)."""
+        self.look = look
+        self.shadowed = None
+
+    def _apply_look(
+        self, look: ShaderLook, camera_position: NDArray[np.float64], far_m: float
+    ) -> None:
+        values = {
+            "light_direction": look.light_direction, "sun_rgb": look.sun_rgb,
+            "zenith_rgb": look.zenith_rgb, "horizon_rgb": look.horizon_rgb,
+            "cloud_cover": look.cloud_cover, "cloud_rgb": look.cloud_rgb, "sun_disc": look.sun_disc,
+            "sky_ambient": look.sky_ambient, "ground_ambient": look.ground_ambient,
+            "shadows": float(look.shadows), "fog_rgb": look.fog_rgb,
+            "fog_density": look.fog_density, "wetness": look.wetness,
+            "lamps_on": float(look.lamps_on), "lamp_rgb": look.lamp_rgb,
+            "lamp_reach_m": look.lamp_reach_m, "spot_rgb": look.spot_rgb,
+            "spot_reach_m": look.spot_reach_m, "far_m": far_m,
+            "camera_position": tuple(float(v) for v in camera_position),
+        }  # fmt: skip
+        for program in (self.program, self.sky_program):
+            for name, value in values.items():
+                _set(program, name, value)
+        lamps = self._nearest_lamps() if look.lamps_on else np.zeros((0, 3))
+        _set(self.program, "lamp_count", len(lamps))
+        _set_array(self.program, "lamp_positions", lamps, MAX_LAMPS)
+        spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
+        _set(self.program, "spot_count", len(spots))
+        _set_array(self.program, "spot_positions", np.array([s[0] for s in spots]), MAX_SPOTS)
+        _set_array(self.program, "spot_directions", np.array([s[1] for s in spots]), MAX_SPOTS)
+        if self.wear is not None:
+            cells = np.array(self.wear.values.shape[::-1], np.float64) * self.wear.cell_m
+            _set(self.program, "wear_origin", self.wear.origin_xy_m)
+            _set(self.program, "wear_extent", tuple(float(v) for v in cells))
+        else:
+            _set(self.program, "wear_extent", (1.0, 1.0))
+        _set(self.program, "shadow_map", 0)
+        _set(self.program, "wear_map", 1)
+
+    def _nearest_lamps(self) -> NDArray[np.float64]:
+        """The street lamps nearest the focus, at most `MAX_LAMPS`, in a fixed order."""
+        if not len(self.street_lamps):
+            return self.street_lamps
+        distance = np.hypot(*(self.street_lamps[:, :2] - self.lights.focus_xy_m).T)
+        nearest = np.sort(np.argsort(distance, kind="stable")[:MAX_LAMPS])
+        return self.street_lamps[nearest]
+
+    def set_models(self, models: Mapping[int, ModelMesh]) -> None:
+        """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
+        self.models = dict(models)
+        self.posed = {}
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
         (pybullet reuses the ids of removed bodies)."""
         self.bodies = {}
+        self.posed = {}
         self.synced = None
 
-    def sync(self, state: object) -> None:
+    def sync(
+        self,
+        state: object,
+        animations: Mapping[int, Animation] | None = None,
+        lights: SceneLights | None = None,
+    ) -> None:
         """Read the moving bodies' poses and colours again unless `state` is the one last read
-        (the world's state counter)."""
+        (the world's state counter); actors with a model are posed by `animations`."""
         if state == self.synced:
             return
         p, client = self.p, self.client
+        animations = animations or {}
         present = [p.getBodyUniqueId(k, physicsClientId=client)
                    for k in range(p.getNumBodies(physicsClientId=client))]  # fmt: skip
         moving = [body for body in present if body not in self.static]
-        self.bodies = {body: self.bodies.get(body) or _Body(p, client, body) for body in moving}
         parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
-        parts += [self.bodies[body].vertices(p, client, body in self.lamps) for body in moving]
+        for body in moving:
+            if body in self.models:
+                position, orientation = p.getBasePositionAndOrientation(
+                    body, physicsClientId=client
+                )
+                if position[2] < HIDDEN_BELOW_M:
+                    continue
+                parts.append(model_vertices(self.models[body], animations.get(body, Animation()),
+                                            position, orientation, body))  # fmt: skip
+            else:
+                if body not in self.bodies:
+                    self.bodies[body] = _Body(p, client, body)
+                parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
         vertices = np.concatenate(parts)
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
-                self.dynamic_array.release()
+                for key in [k for k in self.arrays if k[0] == "dynamic"]:
+                    self.arrays[key].release()
                 self.dynamic_buffer.release()
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
-                self.dynamic_array = self._vertex_array(self.dynamic_buffer)
+                for key in list(self.arrays):
+                    if key[0] == "static":
+                        self.arrays[key].release()
+                self._make_arrays()
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
         self.dynamic_count = len(vertices)
+        self.lights = lights or SceneLights()
         self.synced = state
 
     def _framebuffer(self, width: int, height: int):
@@ -375,6 +521,38 @@ class GLRenderer:
             self.framebuffers[(width, height)] = framebuffer
         return framebuffer
 
+    def _draw_geometry(self, program_name: str) -> None:
+        import moderngl
+
+        # near things first, so that the depth test spares shading what they hide; actors are
+        # drawn two-sided (their thin parts), the twin with back faces culled
+        if self.dynamic_count:
+            self.context.disable(moderngl.CULL_FACE)
+            self.arrays[("dynamic", program_name)].render(
+                moderngl.TRIANGLES, vertices=self.dynamic_count
+            )
+        if self.static_count:
+            self.context.enable(moderngl.CULL_FACE)
+            self.arrays[("static", program_name)].render(
+                moderngl.TRIANGLES, vertices=self.static_count
+            )
+
+    def _shadow_pass(self, matrix: NDArray[np.float64]) -> None:
+        """The sun's depth over the focus into the shadow map (once per state)."""
+        import moderngl
+
+        self.shadow_framebuffer.use()
+        self.shadow_framebuffer.clear(depth=1.0)
+        self.context.enable(moderngl.DEPTH_TEST)
+        self.context.disable(moderngl.CULL_FACE)
+        self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
+        if self.dynamic_count:
+            self.arrays[("dynamic", "shadow")].render(
+                moderngl.TRIANGLES, vertices=self.dynamic_count
+            )
+        if self.static_count:
+            self.arrays[("static", "shadow")].render(moderngl.TRIANGLES, vertices=self.static_count)
+
     def draw(
         self,
         view: Sequence[float],
@@ -383,37 +561,61 @@ class GLRenderer:
         height: int,
         segmentation: bool,
         far_m: float,
+        look: str = "camera",
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
         """RGB `(H, W, 3)`, the depth along the view axis `(H, W)` in metres (`far_m` where
         nothing is drawn) and, with `segmentation`, the body id per pixel `(H, W)` (-1 for
         none), for pybullet's column-major `view` and perspective `projection` matrices; row 0
-        is the top of the image. Depth is the fragment's own (float32), not read back from a
-        depth buffer and linearised: finer than any depth buffer's step, and no CPU work."""
+        is the top of the image. `look`: "camera" (the clip's weather and light), "plain"
+        (its sun without weather or night: the top view) or "labels" (ids and depth only, RGB
+        black). Depth is the fragment's own (float32), not read back from a depth buffer and
+        linearised: finer than any depth buffer's step, and no CPU work."""
         import moderngl
 
+        if look not in LOOKS:
+            raise ValueError(f"look {look!r}: expected one of {', '.join(LOOKS)}")
         # drawn upside down (y flipped in clip space), so that OpenGL's bottom-up rows read out
         # top row first; the flip mirrors the winding, so the front faces turn clockwise
         flip = np.diag([1.0, -1.0, 1.0, 1.0])
-        matrix = (
-            flip
-            @ np.asarray(projection, dtype=np.float64).reshape(4, 4).T
-            @ np.asarray(view, dtype=np.float64).reshape(4, 4).T
-        )
+        view_matrix = np.asarray(view, dtype=np.float64).reshape(4, 4).T
+        projection_matrix = flip @ np.asarray(projection, dtype=np.float64).reshape(4, 4).T
+        matrix = projection_matrix @ view_matrix
+        camera_position = -view_matrix[:3, :3].T @ view_matrix[:3, 3]
+        shader_look = self.look if look == "camera" else self.look.plain()
         with current(self.context):
+            shadows = look != "labels" and shader_look.shadows
+            sun_matrix = shadow_matrix(shader_look.light_direction, self.lights.focus_xy_m)
+            if shadows and self.shadowed != self.synced:
+                self._shadow_pass(sun_matrix)
+                self.shadowed = self.synced
             framebuffer = self._framebuffer(width, height)
             framebuffer.use()
-            for attachment, value in enumerate(((*SKY_RGB, 1.0), (0.0,) * 4, (far_m,) * 4)):
+            for attachment, value in enumerate(((*CLEAR_RGB, 1.0), (0.0,) * 4, (far_m,) * 4)):
                 framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(3))
                 framebuffer.clear(*value, depth=1.0)
             framebuffer.color_mask = ((True,) * 4,) * 3
-            self.context.enable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
             self.context.front_face = "cw"
-            self.program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-            # near things first, so that the depth test spares shading what they hide
-            if self.dynamic_count:
-                self.dynamic_array.render(moderngl.TRIANGLES, vertices=self.dynamic_count)
-            if self.static_count:
-                self.static_array.render(moderngl.TRIANGLES, vertices=self.static_count)
+            if look == "labels":
+                self.context.enable(moderngl.DEPTH_TEST)
+                self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+                self._draw_geometry("labels")
+            else:
+                self._apply_look(shader_look, camera_position, far_m)
+                _set(self.program, "shadows", float(shadows))
+                rotation_only = view_matrix.copy()
+                rotation_only[:3, 3] = 0.0
+                inverse = np.linalg.inv(projection_matrix @ rotation_only)
+                self.sky_program["inverse_view_projection"].write(
+                    inverse.T.astype(np.float32).tobytes()
+                )
+                self.context.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+                self.sky_array.render(moderngl.TRIANGLES, vertices=3)
+                self.context.enable(moderngl.DEPTH_TEST)
+                self.program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+                _set_matrix(self.program, "shadow_matrix", sun_matrix)
+                self.shadow_texture.use(location=0)
+                self.wear_texture.use(location=1)
+                self._draw_geometry("scene")
             # read into fresh arrays: writable, and no copy of bytes
             rgb = np.empty((height, width, 3), np.uint8)
             framebuffer.read_into(rgb, components=3, attachment=0)
@@ -434,7 +636,43 @@ class GLRenderer:
                 for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
                     attachment.release()
                 framebuffer.release()
-            for resource in (self.static_array, self.static_buffer, self.dynamic_array,
-                             self.dynamic_buffer, self.program):  # fmt: skip
+            for array in self.arrays.values():
+                array.release()
+            for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
+                             self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
+                             self.wear_texture, self.program, self.labels_program,
+                             self.sky_program, self.shadow_program):  # fmt: skip
                 resource.release()
         self.framebuffers = {}
+
+
+def _wear_texture(context, wear: WearRaster | None):
+    """The road-wear raster as a single-channel texture (a blank texel without one)."""
+    import moderngl
+
+    values = np.zeros((1, 1), np.uint8) if wear is None else wear.values
+    texture = context.texture(values.shape[::-1], 1, np.ascontiguousarray(values).tobytes())
+    texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    texture.repeat_x = texture.repeat_y = False
+    return texture
+
+
+def _set(program, name: str, value) -> None:
+    """A uniform's value, where the compiled program kept it (unused ones are dropped)."""
+    if name in program:
+        program[name].value = value
+
+
+def _set_array(program, name: str, rows: NDArray, size: int) -> None:
+    """A vec3 array uniform from `(K, 3)` rows, padded to its `size`."""
+    if name not in program:
+        return
+    padded = np.zeros((size, 3), np.float32)
+    rows = np.asarray(rows, np.float32).reshape(-1, 3)[:size]
+    padded[: len(rows)] = rows
+    program[name].write(padded.tobytes())
+
+
+def _set_matrix(program, name: str, matrix: NDArray) -> None:
+    if name in program:
+        program[name].write(np.asarray(matrix).T.astype(np.float32).tobytes())

@@ -2,8 +2,11 @@
 
 Flat surfaces are triangulated meshes lifted a few millimetres apart so that road, markings,
 crosswalks and stop lines never fight for depth: road at 0, sidewalks raised to their kerb
-height, paint 5 mm above the road. Buildings are extruded footprints, trees a trunk and a crown,
-signals a pole with one head whose three lamps `Twin.show` lights by state.
+height, paint 5 mm above the road. Buildings are extruded footprints in varied facade colours,
+trees a trunk and a crown of clustered spheres, street lamps stand along the sidewalks, signals
+a pole (with a mast arm where the head hangs over the road) with one head whose three lamps
+`Twin.show` lights by state. Each batch carries a `Material` for the GL renderer's shaders, and
+`Twin.wear` rasterises the darker wheel tracks along the lanes.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import Building, IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
+from drivee2e_data.sim.models.mesh import Material
 
 PAINT_Z_M = 0.005  # markings sit this far above the road
 ROAD_RGBA = (0.28, 0.28, 0.3, 1.0)
@@ -49,6 +53,24 @@ ZEBRA_STRIPE_M = 0.5
 BUILDING_SETBACK_M = 3.0  # generated buildings keep this far from road, crosswalks and sidewalks
 BUILDING_REACH_M = 90.0  # ...and stand within this distance of the junction
 BUILDING_GRID_M = 22.0  # one candidate building per grid cell
+# facades: renders, brick, concrete and stone, muted as city blocks are
+FACADE_RGBAS = ((0.72, 0.68, 0.60, 1.0), (0.60, 0.42, 0.34, 1.0), (0.58, 0.58, 0.60, 1.0),
+                (0.78, 0.74, 0.66, 1.0), (0.45, 0.47, 0.52, 1.0), (0.66, 0.56, 0.44, 1.0))  # fmt: skip
+CROWN_RGBAS = ((0.20, 0.42, 0.16, 1.0), (0.26, 0.46, 0.18, 1.0), (0.16, 0.36, 0.17, 1.0))
+CROWN_CLUSTERS = 3  # spheres per crown, each 72 triangles: the old crown's 192 in all
+STREET_LAMP_SPACING_M = 30.0
+STREET_LAMP_HEIGHT_M = 8.0
+STREET_LAMP_ARM_M = 1.6
+STREET_LAMP_REACH_M = 110.0  # lamps stand within this of the junction's centre
+POLE_RGBA = (0.32, 0.33, 0.34, 1.0)
+STREET_LAMP_RGBA = (1.0, 0.86, 0.62, 1.0)  # the lamp's face, shining at night
+MAST_ARM_OVER_ROAD_M = 1.0  # a head this far inside the road hangs from a mast arm
+WEAR_CELL_M = 0.15  # the wheel-track raster's cell
+WHEEL_TRACK_OFFSET_M = 0.85  # tracks run this far either side of a lane's centre line
+WHEEL_TRACK_WIDTH_M = 0.5
+KIND_MATERIAL = {"ground": Material.GRASS, "road": Material.ASPHALT,
+                 "sidewalk": Material.PAVEMENT, "road_mark": Material.MARKING,
+                 "stop_line": Material.MARKING, "building": Material.FACADE}  # fmt: skip
 
 
 @dataclass
@@ -63,6 +85,9 @@ class Twin:
     # which road points are painted (kind, area) in the order drawn
     paint: list[tuple[str, shapely.Geometry]] = field(default_factory=list)
     _raster: PaintRaster | None = None
+    meshes: list[TwinMesh] = field(default_factory=list)  # what the GL renderer draws
+    street_lamps: list[tuple[float, float, float]] = field(default_factory=list)  # lamp heads
+    wear: WearRaster | None = None
 
     def paint_raster(self) -> PaintRaster:
         """The markings rasterised (built on first use, then kept)."""
@@ -109,6 +134,30 @@ def _signed_area(corners: NDArray) -> float:
     return 0.5 * ((x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0))
 
 
+@dataclass(frozen=True)
+class TwinMesh:
+    """One body's triangles for the GL renderer: `(V, 3)` vertices, `(3T,)` indices, per-vertex
+    normals `(V, 3)` or None (flat), its colour and material."""
+
+    body: int
+    kind: str
+    rgba: tuple[float, float, float, float]
+    material: Material
+    vertices: NDArray[np.float64]
+    indices: NDArray[np.int64]
+    normals: NDArray[np.float64] | None
+
+
+@dataclass(frozen=True)
+class WearRaster:
+    """How worn the road is per cell (0..1: the wheel tracks along the lanes), cell (0, 0)'s
+    corner at `origin_xy_m`, rows along y."""
+
+    origin_xy_m: tuple[float, float]
+    cell_m: float
+    values: NDArray[np.uint8]  # (rows, columns), 255 fully worn
+
+
 @dataclass
 class _Batch:
     """Triangles of one kind and colour, drawn as one body: pybullet's renderer pays a fixed
@@ -137,7 +186,7 @@ class TwinBuilder:
 
         self.p, self.client = pybullet, client
         self.twin = Twin(client)
-        self.batches: dict[tuple[str, tuple, bool], _Batch] = {}
+        self.batches: dict[tuple[str, tuple, bool, Material], _Batch] = {}
 
     def _add(
         self,
@@ -147,10 +196,13 @@ class TwinBuilder:
         indices: NDArray,
         collide: bool = True,
         normals: NDArray[np.float64] | None = None,
+        material: Material | None = None,
     ) -> None:
-        """Triangles (counter-clockwise seen from outside) for the batch of `kind` and `rgba`;
-        `normals` per vertex for smooth shading (else each triangle is flat)."""
-        self.batches.setdefault((kind, tuple(rgba), collide), _Batch()).add(
+        """Triangles (counter-clockwise seen from outside) for the batch of `kind`, `rgba` and
+        `material` (by default the kind's, `KIND_MATERIAL`); `normals` per vertex for smooth
+        shading (else each triangle is flat)."""
+        material = KIND_MATERIAL.get(kind, Material.MATTE) if material is None else material
+        self.batches.setdefault((kind, tuple(rgba), collide, material), _Batch()).add(
             vertices, indices, normals
         )
 
@@ -184,16 +236,31 @@ class TwinBuilder:
 
     def _finish(self) -> None:
         """One body per batch, in the order the batches began."""
-        for (kind, rgba, collide), batch in self.batches.items():
+        for (kind, rgba, collide, material), batch in self.batches.items():
             visual, collision = self._mesh(batch, rgba, collide)
             body = self.p.createMultiBody(
                 0, collision, visual, [0, 0, 0], physicsClientId=self.client
             )
             self.twin.bodies.append(body)
             self.twin.segmentation[body] = kind
+            normals = None
+            if all(n is not None for n in batch.normals):
+                normals = np.concatenate(batch.normals)
+            self.twin.meshes.append(
+                TwinMesh(
+                    body,
+                    kind,
+                    rgba,
+                    material,
+                    np.concatenate(batch.vertices),
+                    np.concatenate(batch.indices),
+                    normals,
+                )
+            )
         self.batches = {}
 
-    def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str) -> None:
+    def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str,
+              material: Material | None = None) -> None:  # fmt: skip
         vertices, indices = triangulate(geometry)
         if len(indices) == 0:
             return
@@ -201,7 +268,7 @@ class TwinBuilder:
         painted = kind in PAINT_KINDS
         if painted:
             self.twin.paint.append((kind, geometry))
-        self._add(kind, rgba, vertices_3d, indices, collide=not painted)
+        self._add(kind, rgba, vertices_3d, indices, collide=not painted, material=material)
 
     def _prism(
         self, footprint: NDArray, bottom_m: float, top_m: float, rgba: tuple, kind: str,
@@ -232,18 +299,21 @@ class TwinBuilder:
                 self._line_paint(lane.left_boundary_m, lane.left_mark, road)
                 self._line_paint(lane.right_boundary_m, lane.right_mark, road)
         for crosswalk in m.crosswalks:
-            self._flat(
-                shapely.Polygon(crosswalk.polygon_m), 0.5 * PAINT_Z_M, CROSSWALK_RGBA, "crosswalk"
-            )
-            self._flat(_zebra(crosswalk.polygon_m), PAINT_Z_M, WHITE_RGBA, "crosswalk")
+            self._flat(shapely.Polygon(crosswalk.polygon_m), 0.5 * PAINT_Z_M, CROSSWALK_RGBA,
+                       "crosswalk", Material.ASPHALT)  # fmt: skip
+            self._flat(_zebra(crosswalk.polygon_m), PAINT_Z_M, WHITE_RGBA, "crosswalk",
+                       Material.MARKING)  # fmt: skip
         for stop_line in m.stop_lines:
             self._flat(stop_line_band(stop_line.line_m), 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
         for building in m.buildings or generated_buildings(m):
-            self._prism(building.footprint_m, 0.0, building.height_m, BUILDING_RGBA, "building")
+            rgba = FACADE_RGBAS[zlib.crc32(building.building_id.encode()) % len(FACADE_RGBAS)]
+            self._prism(building.footprint_m, 0.0, building.height_m, rgba, "building")
         for tree in m.trees:
             self._tree(tree.position_m, tree.height_m, tree.crown_radius_m)
         for head in m.signal_heads:
-            self._signal(head.signal_id, head.position_m, head.facing_yaw_rad)
+            self._signal(head.signal_id, head.position_m, head.facing_yaw_rad, road)
+        self._street_lamps(m, road)
+        self.twin.wear = wear_raster(m)
         for obstacle in m.static_obstacles:
             self._box(
                 obstacle.position_m,
@@ -255,8 +325,9 @@ class TwinBuilder:
         self._finish()
         return self.twin
 
-    def _box(self, centre: NDArray, yaw: float, size: NDArray, rgba: tuple, kind: str) -> None:
-        self._add(kind, rgba, *box_mesh(centre, yaw, size))
+    def _box(self, centre: NDArray, yaw: float, size: NDArray, rgba: tuple, kind: str,
+             material: Material | None = None) -> None:  # fmt: skip
+        self._add(kind, rgba, *box_mesh(centre, yaw, size), material=material)
 
     def _tree(self, position: NDArray, height_m: float, crown_m: float) -> None:
         # trees are drawn only: rays through crowns made ray casting 1.7x slower a sweep
@@ -264,18 +335,57 @@ class TwinBuilder:
         angles = np.linspace(0.0, 2 * np.pi, TRUNK_SIDES, endpoint=False)
         trunk = np.column_stack([x + 0.15 * np.cos(angles), y + 0.15 * np.sin(angles)])
         self._prism(trunk, 0.0, height_m * 0.6, TRUNK_RGBA, "vegetation", collide=False)
-        vertices, indices, normals = sphere_mesh(np.array([x, y, height_m - crown_m]), crown_m)
-        self._add("vegetation", CROWN_RGBA, vertices, indices, collide=False, normals=normals)
+        # a crown of clustered spheres (a lumpy outline, not a ball), within the crown radius
+        rng = np.random.default_rng(zlib.crc32(f"{x:.2f},{y:.2f}".encode()))
+        centre = np.array([x, y, height_m - crown_m])
+        for k in range(CROWN_CLUSTERS):
+            angle = 2 * np.pi * (k / CROWN_CLUSTERS + rng.uniform(0.0, 0.2))
+            offset = (
+                0.38 * crown_m * np.array([np.cos(angle), np.sin(angle), rng.uniform(-0.4, 0.5)])
+            )
+            vertices, indices, normals = sphere_mesh(
+                centre + offset, 0.68 * crown_m, rings=5, segments=8
+            )
+            rgba = CROWN_RGBAS[int(rng.integers(len(CROWN_RGBAS)))]
+            self._add("vegetation", rgba, vertices, indices, collide=False, normals=normals,
+                      material=Material.FOLIAGE)  # fmt: skip
 
-    def _signal(self, signal_id: str, position: NDArray, facing_rad: float) -> None:
+    def _street_lamps(self, intersection_map: IntersectionMap, road: shapely.Geometry) -> None:
+        """Lamp posts every `STREET_LAMP_SPACING_M` along the kerb (the sidewalks' road side, or
+        the road's edge where the map has no sidewalks), each with an arm over the road."""
+        for base, towards_road in street_lamp_sites(intersection_map, road):
+            x, y = base
+            self._box(np.array([x, y, 0.5 * STREET_LAMP_HEIGHT_M]), 0.0,
+                      np.array([0.16, 0.16, STREET_LAMP_HEIGHT_M]), POLE_RGBA, "pole")  # fmt: skip
+            yaw = float(np.arctan2(towards_road[1], towards_road[0]))
+            arm_centre = base + 0.5 * STREET_LAMP_ARM_M * towards_road
+            self._box(np.array([*arm_centre, STREET_LAMP_HEIGHT_M - 0.1]), yaw,
+                      np.array([STREET_LAMP_ARM_M, 0.1, 0.1]), POLE_RGBA, "pole")  # fmt: skip
+            head = base + STREET_LAMP_ARM_M * towards_road
+            self._box(np.array([*head, STREET_LAMP_HEIGHT_M - 0.22]), yaw, np.array([0.6, 0.28, 0.14]),
+                      STREET_LAMP_RGBA, "pole", Material.STREET_LAMP)  # fmt: skip
+            self.twin.street_lamps.append(
+                (float(head[0]), float(head[1]), STREET_LAMP_HEIGHT_M - 0.35)
+            )
+
+    def _signal(self, signal_id: str, position: NDArray, facing_rad: float,
+                road: shapely.Geometry) -> None:  # fmt: skip
         x, y, z = position
-        self._box(
-            np.array([x, y, 0.5 * z]),
-            0.0,
-            np.array([0.15, 0.15, z]),
-            (0.2, 0.2, 0.2, 1.0),
-            "pole",
-        )
+        point = shapely.Point(x, y)
+        if road.buffer(-MAST_ARM_OVER_ROAD_M).contains(point):  # a mast arm from the kerb
+            edge = shapely.ops.nearest_points(road.boundary, point)[0]
+            outward = np.array([edge.x - x, edge.y - y])
+            outward /= max(float(np.linalg.norm(outward)), 1e-9)
+            pole = np.array([edge.x, edge.y]) + 0.6 * outward
+            span = float(np.linalg.norm(pole - [x, y]))
+            self._box(np.array([*pole, 0.5 * (z + 1.0)]), 0.0, np.array([0.22, 0.22, z + 1.0]),
+                      (0.2, 0.2, 0.2, 1.0), "pole")  # fmt: skip
+            middle = 0.5 * (pole + np.array([x, y]))
+            self._box(np.array([*middle, z + 0.9]), float(np.arctan2(*(pole - [x, y])[::-1])),
+                      np.array([span, 0.14, 0.14]), (0.2, 0.2, 0.2, 1.0), "pole")  # fmt: skip
+        else:
+            self._box(np.array([x, y, 0.5 * z]), 0.0, np.array([0.15, 0.15, z]),
+                      (0.2, 0.2, 0.2, 1.0), "pole")  # fmt: skip
         self._box(
             np.array([x, y, z + 0.45]),
             facing_rad,
@@ -375,8 +485,7 @@ def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
          *(shapely.Polygon(a.polygon_m) for a in intersection_map.sidewalks)]
     )  # fmt: skip
     keep_out = road.buffer(BUILDING_SETBACK_M)
-    stops = [s.line_m[:, :2] for s in intersection_map.stop_lines]
-    centre = np.concatenate(stops).mean(axis=0) if stops else np.asarray(road.centroid.coords[0])
+    centre = junction_centre(intersection_map)
     rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
     placed: list[shapely.Polygon] = []
     buildings = []
@@ -467,6 +576,72 @@ def _zebra(polygon_m: NDArray) -> shapely.Geometry:
             )
         )
     return shapely.union_all(stripes).intersection(polygon.buffer(-0.1))
+
+
+def junction_centre(intersection_map: IntersectionMap) -> NDArray[np.float64]:
+    """The junction's centre: the stop lines' mean, else the road's centroid."""
+    stops = [s.line_m[:, :2] for s in intersection_map.stop_lines]
+    if stops:
+        return np.concatenate(stops).mean(axis=0)
+    return np.asarray(intersection_map.drivable_union().centroid.coords[0])
+
+
+def street_lamp_sites(
+    intersection_map: IntersectionMap, road: shapely.Geometry
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """(base (2,), unit vector towards the road (2,)) of each street lamp: every
+    `STREET_LAMP_SPACING_M` along the road's edge, 0.5 m onto the sidewalk (or off the road),
+    within `STREET_LAMP_REACH_M` of the junction and clear of crosswalks."""
+    centre = shapely.Point(*junction_centre(intersection_map))
+    crossings = shapely.union_all([shapely.Polygon(c.polygon_m).buffer(2.0)
+                                   for c in intersection_map.crosswalks])  # fmt: skip
+    sites = []
+    for ring in shapely.get_parts(road.boundary):
+        for distance in np.arange(0.5 * STREET_LAMP_SPACING_M, ring.length, STREET_LAMP_SPACING_M):
+            point = ring.interpolate(distance)
+            if point.distance(centre) > STREET_LAMP_REACH_M or crossings.contains(point):
+                continue
+            ahead = ring.interpolate(min(distance + 1.0, ring.length))
+            behind = ring.interpolate(max(distance - 1.0, 0.0))
+            tangent = np.array([ahead.x - behind.x, ahead.y - behind.y])
+            if np.linalg.norm(tangent) < 1e-6:
+                continue
+            tangent /= np.linalg.norm(tangent)
+            normal = np.array([-tangent[1], tangent[0]])
+            probe = shapely.Point(point.x + 0.5 * normal[0], point.y + 0.5 * normal[1])
+            towards_road = normal if road.contains(probe) else -normal
+            sites.append((np.array([point.x, point.y]) - 0.5 * towards_road, towards_road))
+    return sites
+
+
+def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
+    """The wheel tracks: two softened bands along every lane, `WHEEL_TRACK_OFFSET_M` either side
+    of its centre line, rasterised at `WEAR_CELL_M`."""
+    import cv2
+
+    x0, y0, x1, y1 = intersection_map.drivable_union().bounds
+    origin = np.array([x0, y0]) - 2.0
+    shape = (
+        int(np.ceil((y1 - y0 + 4.0) / WEAR_CELL_M)),
+        int(np.ceil((x1 - x0 + 4.0) / WEAR_CELL_M)),
+    )
+    values = np.zeros(shape, np.uint8)
+    thickness = max(1, round(WHEEL_TRACK_WIDTH_M / WEAR_CELL_M))
+    for lane in intersection_map.lanes:
+        line = shapely.LineString(lane.centerline_m[:, :2])
+        if line.length < 1.0:
+            continue
+        for offset in (-WHEEL_TRACK_OFFSET_M, WHEEL_TRACK_OFFSET_M):
+            track = line.offset_curve(offset)
+            for part in getattr(track, "geoms", [track]):
+                if part.is_empty:
+                    continue
+                points = np.round((np.asarray(part.coords) - origin) / WEAR_CELL_M * 16).astype(
+                    np.int32
+                )
+                cv2.polylines(values, [points], False, 200, thickness, cv2.LINE_AA, shift=4)
+    values = cv2.GaussianBlur(values, (0, 0), 0.35 / WEAR_CELL_M)
+    return WearRaster((float(origin[0]), float(origin[1])), WEAR_CELL_M, values)
 
 
 def build_twin(intersection_map: IntersectionMap, client: int) -> Twin:

@@ -27,10 +27,12 @@ from numpy.typing import NDArray
 from drivee2e_data.arrays import nearest_indices
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.scenario import Scenario, SignalState
+from drivee2e_data.scenario import AgentClass, Scenario, SignalState
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
-from drivee2e_data.sim.conditions import lighting
-from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available, gl_renderer_name
+from drivee2e_data.sim.animation import MOTOR_VEHICLES, TrackMotion, animation_at, track_motion
+from drivee2e_data.sim.conditions import lighting, shader_look
+from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available, gl_renderer_name
+from drivee2e_data.sim.models import Animation, ModelMesh, agent_model
 from drivee2e_data.sim.twin import Twin, build_twin
 
 LOG = logging.getLogger(__name__)
@@ -166,13 +168,17 @@ class World:
         self.bodies: dict[str, int] = {}
         self.gl: GLRenderer | None = None
         self.state = 0  # counts changes to what is drawn (poses, lamps, actors)
+        self.animations: dict[int, Animation] = {}  # body -> its model's pose inputs now
+        self.scene_lights = SceneLights()
         self.replay(scenario)
         if self.renderer == "gl":
             lamps = {body for head in self.twin.lamps.values() for body, _ in head}
-            static = [body for body in self.twin.bodies if body not in lamps]
             kind_rank = {kind: rank for rank, kind in enumerate(GL_DRAW_ORDER)}
-            static.sort(key=lambda b: kind_rank.get(self.twin.segmentation[b], len(kind_rank)))
-            self.gl = GLRenderer(self.p, self.client, static, self.lighting, sorted(lamps))
+            static = sorted((m for m in self.twin.meshes if m.body not in lamps),
+                            key=lambda m: kind_rank.get(m.kind, len(kind_rank)))  # fmt: skip
+            self.gl = GLRenderer(self.p, self.client, static, self.look, sorted(lamps),
+                                 self.twin.street_lamps, self.twin.wear)  # fmt: skip
+            self.gl.set_models(self.body_models())
 
     def replay(self, scenario: Scenario) -> None:
         """Swap in another clip of the same map: its actors replace the previous clip's, the
@@ -188,17 +194,69 @@ class World:
         self.blueprints: dict[str, Blueprint] = {
             t.track_id: choose_blueprint(t) for t in scenario.tracks
         }
+        self.models: dict[str, ModelMesh] = {
+            t.track_id: agent_model(t.agent_class, self.blueprints[t.track_id].name,
+                                    self.blueprints[t.track_id].size_m, t.track_id)
+            for t in scenario.tracks
+        }  # fmt: skip
+        self.motions: dict[str, TrackMotion] = {
+            t.track_id: track_motion(t) for t in scenario.tracks
+        }
         self.bodies = {
-            track_id: create_actor(self.client, bp) for track_id, bp in self.blueprints.items()
+            track_id: create_actor(self.client, bp, self.models[track_id], self.twin.mesh_dir)
+            for track_id, bp in self.blueprints.items()
         }
         self.lighting = lighting(scenario.conditions, self.intersection_map.origin)
+        self.look = shader_look(scenario.conditions, self.intersection_map.origin)
+        self.animations = {}
         if self.gl is not None:
-            self.gl.set_lighting(self.lighting)
+            self.gl.set_look(self.look)
             self.gl.forget_bodies()
+            self.gl.set_models(self.body_models())
         self.state += 1
         self.ego_xy = np.zeros(2)
+        self.ego_pose: tuple[float, float, float] | None = None  # x, y, yaw: its headlights
         self.ego_id: str | None = None
         self.frame = -1
+
+    def body_models(self) -> dict[int, ModelMesh]:
+        """Each actor body's procedural model (what the GL renderer draws for it)."""
+        return {self.bodies[track_id]: model for track_id, model in self.models.items()}
+
+    def _animate(self, frame: int, shown: Mapping[str, tuple[float, float, float]]) -> None:
+        """Each shown actor's animation at the log's `frame` (wheels, steps, brake lights) and
+        the headlights that light the scene; `shown` maps track ids to (x, y, yaw)."""
+        headlights = self.look.headlights
+        self.animations = {}
+        spots = []
+        for track in self.scenario.tracks:
+            pose = shown.get(track.track_id)
+            if pose is None:
+                continue
+            model = self.models[track.track_id]
+            walks = track.agent_class == AgentClass.PEDESTRIAN
+            motor = (
+                track.agent_class in MOTOR_VEHICLES or track.agent_class == AgentClass.MOTORCYCLIST
+            )
+            animation = animation_at(
+                self.motions[track.track_id], frame, model, headlights and motor, walks
+            )
+            self.animations[self.bodies[track.track_id]] = animation
+            if headlights and motor:
+                spots.append(_headlight(pose, self.blueprints[track.track_id].size_m))
+        if headlights and self.ego_pose is not None:
+            ego = self.scenario.ego
+            size = self.blueprints[ego.track_id].size_m if ego is not None else (4.6, 1.85, 1.45)
+            spots.append(_headlight(self.ego_pose, size))
+        # the nearest first: the shaders take the first MAX_SPOTS
+        spots.sort(
+            key=lambda spot: float(
+                np.hypot(spot[0][0] - self.ego_xy[0], spot[0][1] - self.ego_xy[1])
+            )
+        )
+        self.scene_lights = SceneLights(
+            (float(self.ego_xy[0]), float(self.ego_xy[1])), tuple(spots)
+        )
 
     def close(self) -> None:
         """Disconnect and delete the twin's files; a second call does nothing."""
@@ -217,15 +275,27 @@ class World:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def place_ego(self, x_m: float, y_m: float, ego_id: str | None = None) -> None:
+    def place_ego(
+        self, x_m: float, y_m: float, ego_id: str | None = None, yaw_rad: float | None = None
+    ) -> None:
         """Where the ego is: actors farther than the draw radius from here are hidden, and so is
-        the ego's own logged actor (`ego_id`), which the cameras sit inside."""
+        the ego's own logged actor (`ego_id`), which the cameras sit inside; with `yaw_rad`,
+        its headlights light the road at night (else they follow the ego's logged heading)."""
         self.ego_xy = np.array([x_m, y_m])
         self.ego_id = ego_id
+        self.ego_pose = None if yaw_rad is None else (float(x_m), float(y_m), float(yaw_rad))
 
     def set_time(self, frame: int) -> None:
         """Every agent at its logged pose of `frame` (blueprint box centred on the logged box's
         ground point) and every signal at its logged state; agents invalid then are hidden."""
+        shown: dict[str, tuple[float, float, float]] = {}
+        ego = self.scenario.ego
+        if self.ego_id is not None and ego is not None and self.ego_id == ego.track_id:
+            self.ego_pose = (
+                float(ego.x_m[frame]),
+                float(ego.y_m[frame]),
+                float(ego.yaw_rad[frame]),
+            )
         for track in self.scenario.tracks:
             body = self.bodies[track.track_id]
             visible = (
@@ -241,6 +311,7 @@ class World:
                 z = ground + 0.5 * self.blueprints[track.track_id].size_m[2]
                 orientation = self.p.getQuaternionFromEuler([0.0, 0.0, float(track.yaw_rad[frame])])
                 position = [float(track.x_m[frame]), float(track.y_m[frame]), float(z)]
+                shown[track.track_id] = (position[0], position[1], float(track.yaw_rad[frame]))
             else:
                 orientation, position = [0, 0, 0, 1], [0.0, 0.0, HIDDEN_Z_M]
             self.p.resetBasePositionAndOrientation(
@@ -248,6 +319,7 @@ class World:
             )
         states = {s.signal_id: SignalState(int(s.states[frame])) for s in self.scenario.signals}
         self.twin.show(states)
+        self._animate(frame, shown)
         self.frame = frame
         self.state += 1
 
@@ -255,9 +327,12 @@ class World:
         self,
         placements: Mapping[str, tuple[float, float, float, float]],
         signal_states: Mapping[str, SignalState],
+        frame: int = 0,
     ) -> None:
         """A closed-loop step's scene: each actor in `placements` at (x, y, z of its box centre,
-        yaw), every other actor hidden, the signals at `signal_states`."""
+        yaw), every other actor hidden, the signals at `signal_states`; the models move (wheels,
+        steps, brake lights) as their tracks do at the log's `frame`."""
+        self._animate(frame, {t: (x, y, yaw) for t, (x, y, _, yaw) in placements.items()})
         for track_id, body in self.bodies.items():
             placement = placements.get(track_id)
             if placement is None:
@@ -292,12 +367,15 @@ class World:
         up: NDArray[np.float64] | tuple[float, float, float] = (0.0, 0.0, 1.0),
         native: bool = False,
         frustum: tuple[float, float, float, float] | None = None,
+        look: str = "camera",
     ) -> Image:
         """A `width` x `height` image from a pinhole camera at `eye_m` looking at `target_m`, `up`
         pointing up in the image (world z unless given). With `native`, the image as drawn: with
         EGL, at most `EGL_WINDOW_PX` (`drawn_size`), to be resized by the caller. `frustum`
         (left, right, bottom, top), tangents of the image's edges off the view axis, replaces
-        `vertical_fov_deg` with an off-centre (or non-square-pixel) view."""
+        `vertical_fov_deg` with an off-centre (or non-square-pixel) view. `look` (the GL
+        renderer's): "camera" draws the clip's weather and light, "plain" its sun alone (the top
+        view), "labels" depth and body ids alone (RGB black)."""
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -319,7 +397,8 @@ class World:
                 left, right, bottom, top, near_m, far_m, physicsClientId=self.client
             )
         drawn_width, drawn_height = self.drawn_size(width, height)
-        image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m)
+        image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m,
+                          look)  # fmt: skip
         if native or (drawn_width, drawn_height) == (width, height):
             return image
         return image.resized(width, height)
@@ -347,15 +426,17 @@ class World:
         segmentation: bool,
         near_m: float,
         far_m: float,
+        look: str = "camera",
     ) -> Image:
         """The image drawn with pybullet's column-major `view` and `projection` matrices at
         `width` x `height` (pybullet's EGL plugin stretches what exceeds its window; `render`
-        keeps within it), depth in metres."""
+        keeps within it), depth in metres; `look` as in `render` (pybullet's renderers have
+        one)."""
         import cv2
 
         if self.gl is not None:
-            self.gl.sync(self.state)
-            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m))
+            self.gl.sync(self.state, self.animations, self.scene_lights)
+            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m, look))
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
@@ -382,6 +463,23 @@ class World:
         depth_m = (far_m * near_m / (far_m - (far_m - near_m) * buffer)).astype(np.float32)
         mask = np.asarray(seg, dtype=np.int32).reshape(height, width) if segmentation else None
         return Image(rgb, depth_m, mask)
+
+
+HEADLIGHT_HEIGHT_M = 0.7
+HEADLIGHT_DIP_RAD = 0.08  # dipped beams aim a little down
+
+
+def _headlight(
+    pose: tuple[float, float, float], size_m: tuple[float, float, float]
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """A vehicle's headlights as one spot light: at the middle of its front, along its
+    heading, dipped."""
+    x, y, yaw = pose
+    front = 0.5 * size_m[0]
+    position = (x + front * np.cos(yaw), y + front * np.sin(yaw), HEADLIGHT_HEIGHT_M)
+    c = np.cos(HEADLIGHT_DIP_RAD)
+    direction = (c * np.cos(yaw), c * np.sin(yaw), -np.sin(HEADLIGHT_DIP_RAD))
+    return (tuple(float(v) for v in position), tuple(float(v) for v in direction))
 
 
 def depth_step_m(depth_m: NDArray[np.float64], near_m: float, far_m: float) -> NDArray[np.float64]:

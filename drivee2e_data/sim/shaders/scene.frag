@@ -1,0 +1,184 @@
+// The scene pass (common.glsl is prepended): materials, sun and shadow, sky light, street
+// lamps and headlights, wet surfaces and fog; writes colour, body id and depth in one pass.
+// Uniforms: sky_ambient, ground_ambient (light from above and below), shadow_map, shadows
+// (0 or 1), fog_rgb, fog_density (per metre), wetness (0..1), camera_position, lamp_count,
+// lamp_positions[MAX_LAMPS], lamp_rgb, lamp_reach_m, spot_count, spot_positions[MAX_SPOTS],
+// spot_directions[MAX_SPOTS], spot_rgb, spot_reach_m, lamps_on (0 or 1: street lamps and
+// lit windows), wear_map, wear_origin, wear_extent (the road-wear raster: world corner, size
+// in metres).
+#define MAX_LAMPS 16
+#define MAX_SPOTS 12
+#define LAMP_GAIN 1.6
+#define SPOT_GAIN 3.0
+#define MATTE 0
+#define PAINT 1
+#define GLASS 2
+#define LAMP 3
+#define ASPHALT 4
+#define PAVEMENT 5
+#define GRASS 6
+#define FACADE 7
+#define FOLIAGE 8
+#define MARKING 9
+#define TYRE 10
+#define STREET_LAMP 11
+uniform vec3 sky_ambient;
+uniform vec3 ground_ambient;
+uniform sampler2DShadow shadow_map;
+uniform float shadows;
+uniform vec3 fog_rgb;
+uniform float fog_density;
+uniform float wetness;
+uniform vec3 camera_position;
+uniform int lamp_count;
+uniform vec3 lamp_positions[MAX_LAMPS];
+uniform vec3 lamp_rgb;
+uniform float lamp_reach_m;
+uniform int spot_count;
+uniform vec3 spot_positions[MAX_SPOTS];
+uniform vec3 spot_directions[MAX_SPOTS];
+uniform vec3 spot_rgb;
+uniform float spot_reach_m;
+uniform float lamps_on;
+uniform sampler2D wear_map;
+uniform vec2 wear_origin;
+uniform vec2 wear_extent;
+in vec3 world_position;
+in vec3 normal;
+in vec3 colour;
+in float eye_depth;
+in vec4 shadow_position;
+flat in float body;
+flat in float emission;
+flat in int material;
+layout(location = 0) out vec4 rgba;
+layout(location = 1) out float body_out;
+layout(location = 2) out float depth_out;
+
+float sunlit() {
+    if (shadows < 0.5) return 1.0;
+    vec3 p = shadow_position.xyz / shadow_position.w * 0.5 + 0.5;
+    if (any(lessThan(p.xy, vec2(0.0))) || any(greaterThan(p.xy, vec2(1.0)))) return 1.0;
+    vec2 texel = 1.0 / vec2(textureSize(shadow_map, 0));
+    float lit = 0.0;
+    for (int k = 0; k < 4; ++k) {  // four taps of the hardware's 2x2 filter: soft edges
+        vec2 offset = (vec2(k & 1, k >> 1) - 0.5) * texel;
+        lit += texture(shadow_map, vec3(p.xy + offset, p.z - 0.0006));
+    }
+    // shadows fade out at the map's border instead of ending on a line
+    vec2 edge = min(p.xy, 1.0 - p.xy);
+    return mix(1.0, 0.25 * lit, smoothstep(0.0, 0.08, min(edge.x, edge.y)));
+}
+
+// the albedo of the procedural materials, and how shiny they are (x: specular share,
+// y: exponent)
+vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
+    vec2 p = world_position.xy;
+    float fine = clamp(1.0 - eye_depth / 35.0, 0.0, 1.0);  // grain fades before it aliases
+    shine = vec2(0.0, 1.0);
+    glow = 0.0;
+    if (material == ASPHALT) {
+        float grain = noise(p * 9.0) - 0.5;
+        float patches = fbm(p * 0.18) - 0.5;
+        vec2 wear_uv = (p - wear_origin) / wear_extent;
+        float wear = texture(wear_map, wear_uv).r;
+        shine = vec2(0.04, 16.0);
+        return base * (1.0 + 0.22 * grain * fine + 0.35 * patches) * (1.0 - 0.28 * wear);
+    }
+    if (material == MARKING) {
+        shine = vec2(0.05, 16.0);
+        return base * (0.88 + 0.18 * noise(p * 2.5) * (0.5 + 0.5 * fine));
+    }
+    if (material == PAVEMENT) {
+        vec2 slab = fract(p / vec2(0.6, 0.6));
+        float joint = step(0.06, slab.x) * step(0.06, slab.y);
+        float tone = 0.92 + 0.16 * hash(floor(p / 0.6));
+        return base * tone * mix(0.8, 1.0, mix(1.0, joint, fine)) * (0.95 + 0.1 * noise(p * 4.0));
+    }
+    if (material == GRASS) {
+        return base * (0.72 + 0.5 * fbm(p * 0.35)) * (1.0 + 0.18 * (noise(p * 6.0) - 0.5) * fine);
+    }
+    if (material == FOLIAGE) {
+        vec2 q = world_position.xy * 2.2 + world_position.z * 1.7;
+        return base * (0.6 + 0.7 * noise(q)) * (0.85 + 0.3 * noise(q * 3.1));
+    }
+    if (material == FACADE) {
+        if (abs(n.z) > 0.5) return base * 0.55;  // roofs: dark gravel
+        vec2 tangent = normalize(vec2(-n.y, n.x));
+        float u = dot(world_position.xy, tangent) / 3.4;
+        float v = world_position.z / 3.2;  // storeys of 3.2 m
+        vec2 cell = vec2(floor(u), floor(v));
+        float inside = step(0.22, fract(u)) * step(fract(u), 0.78)
+            * step(0.3, fract(v)) * step(fract(v), 0.82) * step(1.0, v);
+        float band = 1.0 - 0.12 * step(0.92, fract(v));  // floor slabs
+        if (inside > 0.5) {
+            shine = vec2(0.5, 80.0);
+            // some windows lit at night, by a hash of the window
+            float chance = hash(cell + floor(world_position.xy / 50.0));
+            glow = lamps_on * step(0.75, chance);
+            vec3 warm = vec3(0.95, 0.78, 0.45) * (0.55 + 1.8 * (chance - 0.75));
+            return mix(vec3(0.12, 0.14, 0.17), warm, glow);
+        }
+        return base * band * (0.92 + 0.12 * noise(vec2(u * 3.0, v * 3.0)));
+    }
+    if (material == PAINT) shine = vec2(0.35, 40.0);
+    if (material == GLASS) shine = vec2(0.7, 120.0);
+    if (material == TYRE) shine = vec2(0.02, 8.0);
+    return base;
+}
+
+void main() {
+    vec3 n = normalize(normal);
+    vec3 view = normalize(camera_position - world_position);
+    if (dot(n, view) < 0.0 && material != FOLIAGE) n = -n;  // thin parts seen from behind
+    vec2 shine;
+    float glow;
+    vec3 base = albedo(colour, n, shine, glow);
+    bool ground = material == ASPHALT || material == MARKING || material == PAVEMENT
+        || material == GRASS;
+    if (ground && wetness > 0.0) {  // wet surfaces darken and turn glossy
+        base *= 1.0 - 0.3 * wetness;
+        shine = mix(shine, vec2(0.9, 60.0), wetness * (material == GRASS ? 0.2 : 1.0));
+    }
+    float sun = sunlit();
+    vec3 ambient = mix(ground_ambient, sky_ambient, 0.5 + 0.5 * n.z);
+    vec3 lit = base * (ambient + sun * sun_rgb * max(dot(n, light_direction), 0.0));
+    vec3 half_vector = normalize(light_direction + view);
+    lit += sun * shine.x * sun_rgb * pow(max(dot(n, half_vector), 0.0), shine.y);
+    // the sky seen in glossy surfaces (glass, wet roads): Schlick's Fresnel term
+    float fresnel = 0.04 + 0.96 * pow(1.0 - max(dot(n, view), 0.0), 5.0);
+    if (shine.x > 0.3) {
+        vec3 reflected = reflect(-view, n);
+        lit = mix(lit, sky_colour(reflected) * 0.8, clamp(fresnel * shine.x, 0.0, 0.85));
+    }
+    for (int i = 0; i < lamp_count; ++i) {  // street lamps: warm points from above
+        vec3 to_lamp = lamp_positions[i] - world_position;
+        float distance = length(to_lamp);
+        vec3 l = to_lamp / distance;
+        float falloff = LAMP_GAIN / (1.0 + 2.0 * pow(distance / lamp_reach_m, 2.0));
+        falloff *= smoothstep(2.5 * lamp_reach_m, 1.5 * lamp_reach_m, distance);
+        lit += falloff * lamp_rgb * (base * max(dot(n, l), 0.0)
+            + shine.x * pow(max(dot(n, normalize(l + view)), 0.0), shine.y));
+    }
+    for (int i = 0; i < spot_count; ++i) {  // headlights: cones along the vehicles' headings
+        vec3 to_light = spot_positions[i] - world_position;
+        float distance = length(to_light);
+        vec3 l = to_light / distance;
+        float cone = smoothstep(0.82, 0.95, dot(-l, spot_directions[i]));
+        float reach = clamp(1.0 - distance / spot_reach_m, 0.0, 1.0);
+        float falloff = SPOT_GAIN * cone * reach * reach;
+        // headlight beams are shaped to throw far along the road: the road, met at a grazing
+        // angle, is lit more than a cosine law from one point would give (a wrapped cosine)
+        float facing = clamp((dot(n, l) + 0.6) / 1.6, 0.0, 1.0);
+        lit += falloff * spot_rgb * (base * facing
+            + shine.x * pow(max(dot(n, normalize(l + view)), 0.0), shine.y));
+    }
+    float shining = emission;
+    if (material == STREET_LAMP) shining = lamps_on;
+    lit = mix(lit, colour, clamp(shining, 0.0, 1.0));  // lamps shine their own colour
+    lit = mix(lit, base, glow);
+    vec3 result = mix(fog_rgb, lit, exp(-fog_density * eye_depth));
+    rgba = vec4(clamp(result, 0.0, 1.0), 1.0);
+    body_out = body;
+    depth_out = eye_depth;
+}

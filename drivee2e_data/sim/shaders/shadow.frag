@@ -1,0 +1,5 @@
+#version 330
+// The sun's shadow map: depth only (the depth buffer is the output).
+// Uniforms: none.
+void main() {
+}
