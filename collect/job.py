@@ -131,6 +131,7 @@ def collect_clip(
             frames = range(min(options.max_frames, scenario.num_frames))
         collection = {
             "renderer": world.renderer,
+            "look": str(world.look_version),
             "jpeg_quality": str(options.jpeg_quality),
             "cameras": ",".join(c.name for c in suite.rig.cameras),
             "lidar": options.lidar,

@@ -68,7 +68,7 @@ def frame_views(weather: Weather, time_of_day: TimeOfDay, light: Lighting):
     cameras = default_rig().cameras[:2]
     views = [CameraFrame(c, *scene(768, 1024, seed=k), None) for k, c in enumerate(cameras)]
     scenario = SimpleNamespace(scenario_id="s0", conditions=Conditions(weather, time_of_day, WHEN))
-    return SimpleNamespace(scenario=scenario, lighting=light), views
+    return SimpleNamespace(scenario=scenario, lighting=light, renderer="tiny"), views
 
 
 @pytest.mark.parametrize(

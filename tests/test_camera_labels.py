@@ -66,9 +66,11 @@ def test_depth_of_a_car_20_m_ahead_reads_20_m(labelled_frame) -> None:
     car = images["instance"] == index["lead"] + 1
     assert car.sum() > 50
     depth_m = images["depth"][car] / 1000.0
-    # the body's rear face is a plane 20 m down the optical axis; the cabin sits further back
-    assert np.percentile(depth_m, 5) == pytest.approx(20.0, abs=0.02)
-    assert np.mean(np.abs(depth_m - 20.0) <= 0.02) > 0.5
+    # the box's rear face is 20 m down the optical axis: the bumper and lamps reach it, the
+    # body, boot lid and rear window stand further back, all within the box's length
+    assert depth_m.min() == pytest.approx(20.0, abs=0.02)
+    assert np.percentile(depth_m, 5) == pytest.approx(20.0, abs=0.05)
+    assert depth_m.max() <= 20.0 + 4.6 and 20.0 < np.median(depth_m) < 20.0 + 2.3
     assert (images["semantic"][car] == SEMANTIC_CLASSES.index("car")).all()
 
 

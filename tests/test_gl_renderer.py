@@ -3,10 +3,10 @@ renderer, and the same image every time."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
-
-from dataclasses import replace
 
 from drivee2e_data.sim.conditions import ShaderLook
 from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available, read_obj

@@ -109,6 +109,9 @@ def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
         cast = sweep(world.client, lidar, sensor_to_world, world.twin.segmentation, paint)
         read = depth_sweep(world, lidar, sensor_to_world, paint)
         agents = set(world.bodies.values())
+        two_wheeled = ("cyclist", "motorcyclist", "tricyclist")
+        solid = {world.bodies[t.track_id] for t in scenario.tracks
+                 if t.agent_class.value not in two_wheeled}  # fmt: skip
     cast_range = ranges_per_beam(cast, lidar)
     read_range = ranges_per_beam(read, lidar)
     both = np.isfinite(cast_range) & np.isfinite(read_range)
@@ -119,8 +122,12 @@ def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
     for body in agents:
         expected = int((cast.body == body).sum())
         if expected >= 50:
-            assert abs(int((read.body == body).sum()) - expected) <= 0.05 * expected, body
-            counted += 1
+            # ray casting hits the convex parts of the models (`actors.convex_parts`), the depth
+            # images their triangles: the same on solid bodies; a two-wheeler's spoked wheels
+            # and open frame are discs and hulls to the rays, so the images see fewer points
+            tolerance = 0.05 if body in solid else 0.3
+            assert abs(int((read.body == body).sum()) - expected) <= tolerance * expected, body
+            counted += body in solid
     assert counted >= 3
     # paint is seen directly: its returns carry the markings' reflectivity, as ray casting's do
     assert np.isclose(read.intensity, INTENSITY["road_mark"]).mean() == pytest.approx(

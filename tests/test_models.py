@@ -37,7 +37,7 @@ def test_a_vehicle_fills_its_box_to_a_centimetre_on_each_axis(agent_class, name,
 
 
 @pytest.mark.parametrize(
-    ("agent_class", "name", "size"), _blueprints(RIDDEN + (AgentClass.PEDESTRIAN,))
+    ("agent_class", "name", "size"), _blueprints((*RIDDEN, AgentClass.PEDESTRIAN))
 )
 def test_people_and_riders_stay_inside_their_boxes_however_they_move(agent_class, name, size):
     model = agent_model(agent_class, name, size, "person-3")
@@ -229,3 +229,48 @@ def _quad(half: float):
         [[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]]
     )
     return vertices, np.array([0, 1, 2, 0, 2, 3])
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    from tests.factories import synthetic_clip
+
+    return synthetic_clip(tmp_path_factory.mktemp("models_site"))
+
+
+@needs_gl
+def test_instance_pixels_lie_inside_the_projected_box(site):
+    """Every pixel an agent's model covers in the six cameras lies inside its box's projection
+    (the box stays the label): the models fill their boxes and never leave them."""
+    from dataclasses import replace
+
+    import shapely
+
+    from drivee2e_data.sensors.annotate import box_corners_3d, projected_area
+    from drivee2e_data.sensors.camera import render
+    from drivee2e_data.sensors.ego_state import ego_motion
+    from drivee2e_data.sensors.rig import default_rig
+    from drivee2e_data.sim.world import World
+
+    intersection_map, scenario = site
+    checked = 0
+    with World(intersection_map, scenario, renderer="gl") as world:
+        ego = scenario.ego
+        motion = ego_motion(scenario)
+        for frame in (20, 60):
+            world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+            world.set_time(frame)
+            ego_to_world = motion.ego_to_world(frame)
+            for camera in default_rig().cameras:
+                view = render(world, replace(camera, width=400, height=225), ego_to_world)
+                for track in scenario.tracks:
+                    body = world.bodies[track.track_id]
+                    rows, columns = np.nonzero(view.mask == body)
+                    if len(rows) < 5:
+                        continue
+                    corners = box_corners_3d(track, frame, world.blueprints[track.track_id].size_m)
+                    area = projected_area(view, corners, ego_to_world).buffer(1.0)
+                    points = shapely.points(columns + 0.5, rows + 0.5)
+                    assert shapely.contains(area, points).all(), (track.track_id, camera.name)
+                    checked += 1
+    assert checked >= 5

@@ -43,7 +43,8 @@ class SensorObserver:
         """JPEG per camera and the LiDAR points `(N, 5)` at this step; weather noise is seeded
         by the log frame `frame` as in collection."""
         world = self.world
-        world.show({p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}, signals)
+        world.place_ego(state.x_m, state.y_m, world.ego_id, state.yaw_rad)  # its headlights
+        world.show({p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}, signals, frame)
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images = {}
         for camera in self.rig.cameras:

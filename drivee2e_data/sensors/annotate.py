@@ -68,33 +68,67 @@ def visible_share(
     corners_world: NDArray[np.float64],
     ego_to_world: NDArray[np.float64],
 ) -> float:
-    """Share of the box's projected area (in the image) whose pixels show the body itself,
-    counted in the view as drawn: by the body mask where the view has one, else by depth (a
-    pixel shows the box when the point its depth puts in the world lies inside the box; see
-    `DEPTH_MARGIN_M`), which spares the renderer its mask pass."""
+    """Share of the box's projected area (in the image) not hidden by something in front of
+    the box, counted in the view as drawn. A pixel is hidden when what it shows is not the body
+    (by the body mask where the view has one, else by depth: the point its depth puts in the
+    world lies outside the box, see `DEPTH_MARGIN_M`) and lies nearer than where the pixel's
+    ray enters the box. A pixel that sees past the agent's model through its box (between a
+    walker's legs, over a car's bonnet) is not hidden: the models fill their boxes only
+    partly, and visibility is about occlusion, as nuScenes' annotators judge it. An agent none
+    of whose own pixels shows is not visible (0)."""
     covered = _covered_pixels(frame, corners_world, ego_to_world)
     if covered is None:
         return 0.0
     rows, columns = covered
-    if frame.mask is not None:
-        return float((frame.mask[rows, columns] == body).sum() / len(rows))
     # a share needs no more than a few thousand of a near box's pixels: an even subsample
     step = max(1, len(rows) // DEPTH_SAMPLES)
     rows, columns = rows[::step], columns[::step]
     scale_x, scale_y = frame.drawn_per_camera_px
     intrinsic = frame.camera.intrinsic
     depth = frame.depth_m[rows, columns].astype(np.float64)
-    points_camera = np.column_stack(
+    rays = np.column_stack(
         [
-            ((columns + 0.5) / scale_x - intrinsic[0, 2]) / intrinsic[0, 0] * depth,
-            ((rows + 0.5) / scale_y - intrinsic[1, 2]) / intrinsic[1, 1] * depth,
-            depth,
+            ((columns + 0.5) / scale_x - intrinsic[0, 2]) / intrinsic[0, 0],
+            ((rows + 0.5) / scale_y - intrinsic[1, 2]) / intrinsic[1, 1],
+            np.ones(len(rows)),
         ]
     )
     to_world = camera_to_world(frame.camera, ego_to_world)
-    points_world = points_camera @ to_world[:3, :3].T + to_world[:3, 3]
+    rays_world = rays @ to_world[:3, :3].T
+    points_world = rays_world * depth[:, None] + to_world[:3, 3]
     margin = DEPTH_MARGIN_M + depth_step_m(depth, NEAR_M, FAR_M)
-    return float(_inside_box(points_world, corners_world, margin).sum() / len(rows))
+    if frame.mask is not None:
+        on_body = frame.mask[rows, columns] == body
+    else:
+        on_body = _inside_box(points_world, corners_world, margin)
+    entry = _entry_depth(to_world[:3, 3], rays_world, corners_world)
+    through = np.isfinite(entry)  # a pixel on the outline's edge may pass beside the box
+    if not (through & on_body).any():
+        return 0.0  # nothing of the agent is drawn: not seen, whatever shows through its box
+    hidden = ~on_body[through] & (depth[through] < entry[through] - margin[through])
+    return float(1.0 - hidden.sum() / through.sum())
+
+
+def _entry_depth(
+    origin: NDArray[np.float64], rays: NDArray[np.float64], corners_world: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) the depth (camera z, as `rays` (N, 3) are scaled: z = 1) at which each ray from
+    `origin` enters the box (slab test); inf for rays that miss it."""
+    box_origin = corners_world[2]
+    axes = np.stack([corners_world[1] - box_origin, corners_world[3] - box_origin,
+                     corners_world[6] - box_origin])  # fmt: skip
+    lengths = np.linalg.norm(axes, axis=1)
+    units = axes / lengths[:, None]
+    start = units @ (origin - box_origin)  # (3,) the camera in the box's frame
+    along = rays @ units.T  # (N, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = (0.0 - start) / along
+        high = (lengths - start) / along
+    near = np.nanmax(np.where(along != 0, np.minimum(low, high), -np.inf), axis=1)
+    far = np.nanmin(np.where(along != 0, np.maximum(low, high), np.inf), axis=1)
+    # a ray parallel to a slab misses the box unless it runs inside that slab
+    outside = (along == 0) & ((start < 0) | (start > lengths))
+    return np.where((near <= far) & ~outside.any(axis=1), np.maximum(near, 0.0), np.inf)
 
 
 # a surface point belongs to a box within this much (plus the depth buffer's step there) of its

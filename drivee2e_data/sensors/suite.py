@@ -197,7 +197,7 @@ class SensorSuite:
                 for r in self.rig.radars
             }
         with _timed(seconds, "annotate"):
-            boxes = self._annotate(frame, ego_to_world, views, sweep, returns)
+            boxes = self._annotate(frame, ego_to_world, views, sweep, lidar_to_world, returns)
         with _timed(seconds, "bev"):
             world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), None)
             world.set_time(frame)  # the top view shows the ego too
@@ -227,13 +227,16 @@ class SensorSuite:
         ego_to_world: NDArray[np.float64],
         views: list[CameraFrame],
         sweep: lidar.LidarSweep,
+        lidar_to_world: NDArray[np.float64],
         returns: dict[str, radar.RadarReturns],
     ) -> tuple[BoxAnnotation, ...]:
         world, scenario = self.world, self.world.scenario
         world_to_ego = np.linalg.inv(ego_to_world)
         ego_yaw = float(self.motion.yaw_rad[frame])
-        bodies, counts = np.unique(sweep.body, return_counts=True)
-        lidar_counts = dict(zip(bodies.tolist(), counts.tolist(), strict=True))
+        order = np.argsort(sweep.body, kind="stable")
+        bodies, starts = np.unique(sweep.body[order], return_index=True)
+        ends = np.append(starts[1:], len(order))
+        hits = {int(b): order[a:e] for b, a, e in zip(bodies, starts, ends, strict=True)}
         radar_counts: dict[str, int] = {}
         for result in returns.values():
             for track_id in result.track_ids:
@@ -280,11 +283,35 @@ class SensorSuite:
                     visibility=annotate.visibility_level(share),
                     visible_share=share,
                     cameras=tuple(name for name, value in shares.items() if value > 0.0),
-                    num_lidar_points=int(lidar_counts.get(body, 0)),
+                    num_lidar_points=_points_in_box(sweep, hits.get(body), lidar_to_world, corners),
                     num_radar_points=int(radar_counts.get(track.track_id, 0)),
                 )
             )
         return tuple(boxes)
+
+
+# a box counts its model's returns within this much of its faces: a steered front wheel pokes a
+# centimetre or two out of the box (`models.mesh.STEER_LIMIT_RAD`), and a box's points lie in it
+BOX_POINT_MARGIN_M = 0.02
+
+
+def _points_in_box(
+    sweep: lidar.LidarSweep,
+    indices: NDArray[np.intp] | None,
+    lidar_to_world: NDArray[np.float64],
+    corners: NDArray[np.float64],
+) -> int:
+    """How many of the agent's own returns (`indices` into the sweep) lie in its box, grown by
+    `BOX_POINT_MARGIN_M` on every side."""
+    if indices is None or not len(indices):
+        return 0
+    points = sweep.points_m[indices].astype(np.float64) @ lidar_to_world[:3, :3].T
+    points += lidar_to_world[:3, 3]
+    centre = corners.mean(axis=0)
+    grown = centre + (corners - centre) * (
+        1.0 + 2 * BOX_POINT_MARGIN_M / np.ptp(corners, axis=0).clip(1e-6)
+    )
+    return annotate.points_in_box(points, grown)
 
 
 def configured_rig(options: SuiteOptions) -> Rig:

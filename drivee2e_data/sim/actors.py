@@ -10,7 +10,6 @@ the simple boxes of before as its visual shape.
 from __future__ import annotations
 
 import hashlib
-import itertools
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +20,13 @@ from numpy.typing import NDArray
 from drivee2e_data.scenario import AgentClass, Track
 from drivee2e_data.sim.models import ModelMesh
 
-SLICES = 6  # a model's rigid body is cut into this many slabs along its longest axis, each hulled
+# pybullet takes at most 16 shapes in one compound (MAX_COMPOUND_COLLISION_SHAPES in its
+# shared-memory commands; the rest are dropped without a word)
+MAX_PARTS = 16
+# a vehicle's rigid body is cut into cells, each hulled: two layers up its height (sills and
+# greenhouse apart, so no hull fills the air beside the tumblehome), the rest of the parts along
+# its length (bonnet, cabin and boot apart)
+LAYERS = 2
 
 # (name, length, width, height) of the blueprints; a track takes the nearest of its class.
 BLUEPRINTS: dict[AgentClass, tuple[tuple[str, float, float, float], ...]] = {
@@ -70,26 +75,35 @@ def choose_blueprint(track: Track) -> Blueprint:
 
 
 def convex_parts(model: ModelMesh) -> list[NDArray[np.float64]]:
-    """The model as convex pieces `(V_k, 3)`: each moving joint's vertices (a wheel, a limb),
-    and the rigid body in `SLICES` slabs along its longest axis (a car's hood, cabin and boot
-    each hulled apart, so the hull does not fill the air over the hood)."""
+    """The model as at most `MAX_PARTS` convex pieces `(V_k, 3)`: each moving joint's
+    vertices (a wheel, a limb), and the rigid body in the cells left: along its longest axis,
+    in `LAYERS` layers where that axis is horizontal (each triangle in the cell of its
+    centroid)."""
     positions = model.positions.astype(np.float64).reshape(-1, 3, 3)
     joints = model.joints[::3]
-    parts = []
-    for joint in np.unique(joints):
-        triangles = positions[joints == joint]
-        if joint != 0:
-            parts.append(triangles.reshape(-1, 3))
-            continue
-        extent = triangles.reshape(-1, 3).max(axis=0) - triangles.reshape(-1, 3).min(axis=0)
-        axis = int(np.argmax(extent))
-        centres = triangles.mean(axis=1)[:, axis]
-        edges = np.linspace(centres.min(), centres.max() + 1e-9, SLICES + 1)
-        for low, high in itertools.pairwise(edges):
-            chosen = triangles[(centres >= low) & (centres < high)]
-            if len(chosen):
-                parts.append(chosen.reshape(-1, 3))
-    return [part for part in parts if len(part) >= 4]
+    moving = [positions[joints == joint].reshape(-1, 3) for joint in np.unique(joints) if joint]
+    body = positions[joints == 0]
+    cells = max(MAX_PARTS - len(moving), 1)
+    parts = [part for part in moving if len(part) >= 4][: MAX_PARTS - 1]
+    if not len(body):
+        return parts
+    extent = body.reshape(-1, 3).max(axis=0) - body.reshape(-1, 3).min(axis=0)
+    centres = body.mean(axis=1)
+    axis = int(np.argmax(extent))
+    layers = LAYERS if axis != 2 and cells >= 2 * LAYERS else 1
+    slices = max(1, cells // layers)
+    along, up = _bins(centres[:, axis], slices), _bins(centres[:, 2], layers)
+    for index in range(slices * layers):
+        chosen = body[(along == index // layers) & (up == index % layers)]
+        if len(chosen):
+            parts.append(chosen.reshape(-1, 3))
+    return [part for part in parts if len(part) >= 4][:MAX_PARTS]
+
+
+def _bins(values: NDArray[np.float64], count: int) -> NDArray[np.int64]:
+    """Each value's bin among `count` equal bins over the values' range."""
+    edges = np.linspace(values.min(), values.max() + 1e-9, count + 1)
+    return np.clip(np.searchsorted(edges, values, side="right") - 1, 0, count - 1)
 
 
 def _part_files(model: ModelMesh, folder: Path) -> list[str]:

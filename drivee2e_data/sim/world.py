@@ -32,7 +32,7 @@ from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import MOTOR_VEHICLES, TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
 from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available, gl_renderer_name
-from drivee2e_data.sim.models import Animation, ModelMesh, agent_model
+from drivee2e_data.sim.models import LOOK_VERSION, Animation, ModelMesh, agent_model
 from drivee2e_data.sim.twin import Twin, build_twin
 
 LOG = logging.getLogger(__name__)
@@ -402,6 +402,12 @@ class World:
         if native or (drawn_width, drawn_height) == (width, height):
             return image
         return image.resized(width, height)
+
+    @property
+    def look_version(self) -> int:
+        """The look of this world's images (`models.LOOK_VERSION` with the GL renderer; 1,
+        pybullet's boxes, with its own renderers)."""
+        return LOOK_VERSION if self.renderer == "gl" else 1
 
     @property
     def can_render(self) -> bool:

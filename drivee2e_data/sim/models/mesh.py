@@ -305,7 +305,8 @@ ARM_SWING_RAD = np.radians(15.0)
 ELBOW_BEND_RAD = np.radians(12.0)
 PEDAL_SWING_RAD = np.radians(18.0)
 TAIL_GLOW = 0.45  # tail lights' emission with the headlights on and no brake
-STEER_LIMIT_RAD = np.radians(20.0)  # wheels are drawn turned at most this far (arches hide more)
+STEER_LIMIT_RAD = np.radians(12.0)  # wheels are drawn turned at most this far (a tyre then pokes
+# at most 2 cm out of the box; real arches hide more)
 
 
 def joint_rotations(mesh: ModelMesh, animation: Animation) -> NDArray[np.float64]:

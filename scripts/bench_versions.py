@@ -1,0 +1,107 @@
+"""`drivee2e collect` through the CLI with two versions of this code on the same clips, runs
+alternating, so that a change's cost is measured against what users ran before it.
+
+    python scripts/bench_versions.py --base REV [--clips 16] [--seed 0] [--max-frames 30]
+        [--repeats 2] [--workers auto] [-- EXTRA COLLECT ARGS]
+
+The clips are `drivee2e synth --clips N --seed S` (every weather and time of day the seed
+draws), curated once; each run collects all of them into a fresh logs folder with
+`--workers auto` (the host plan) and `--max-frames` frames per clip (omit it for whole clips).
+The base version is a git worktree of REV imported ahead of the installed package; the other is
+the working tree. Prints each run's frames/s (from the CLI's summary line), the mean per
+version, the ratio (working tree / base) and MB of log per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+RATE = re.compile(r"(\d+) frames in ([\d.]+) s \(([\d.]+) frames/s\)")
+
+
+def base_tree(revision: str, folder: Path) -> Path:
+    """A worktree of `revision` importable from a PYTHONPATH entry (`collect/` and `loaders/`
+    linked into the package, as the installed package maps them)."""
+    tree = folder / "base"
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), revision],
+                   check=True, capture_output=True)  # fmt: skip
+    for name in ("collect", "loaders"):
+        (tree / "drivee2e_data" / name).symlink_to(tree / name, target_is_directory=True)
+    return tree
+
+
+def cli(arguments: list[str], pythonpath: Path | None) -> str:
+    environment = dict(os.environ)
+    if pythonpath is not None:
+        environment["PYTHONPATH"] = f"{pythonpath}{os.pathsep}{environment.get('PYTHONPATH', '')}"
+    command = [
+        sys.executable,
+        "-c",
+        "import sys; from drivee2e_data.cli import main; sys.exit(main())",
+    ]
+    done = subprocess.run([*command, *arguments], env=environment, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"drivee2e {' '.join(arguments)} failed:\n{done.stdout}\n{done.stderr}")
+    return done.stdout + done.stderr
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--base", required=True, help="git revision to compare against")
+    parser.add_argument("--clips", type=int, default=16)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--max-frames", type=int, default=30, help="0: whole clips")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--workers", default="auto")
+    parser.add_argument("extra", nargs="*", help="more `drivee2e collect` arguments (after --)")
+    args = parser.parse_args()
+    folder = Path(tempfile.mkdtemp(prefix="bench_versions_"))
+    try:
+        base = base_tree(args.base, folder)
+        data = folder / "data"
+        cli(
+            ["synth", "--out", str(data), "--clips", str(args.clips), "--seed", str(args.seed)],
+            None,
+        )
+        cli(["curate", str(data)], None)
+        collect = ["collect", str(data), "--workers", args.workers, *args.extra]
+        if args.max_frames:
+            collect += ["--max-frames", str(args.max_frames)]
+        rates: dict[str, list[float]] = {"base": [], "working tree": []}
+        sizes: dict[str, float] = {}
+        for repeat in range(args.repeats):
+            for name, path in (("base", base), ("working tree", None)):
+                shutil.rmtree(data / "logs", ignore_errors=True)
+                start = time.perf_counter()
+                output = cli(collect, path)
+                wall = time.perf_counter() - start
+                match = RATE.search(output)
+                if match is None:
+                    raise SystemExit(f"no rate in the collector's output:\n{output}")
+                frames, rate = int(match.group(1)), float(match.group(3))
+                log_bytes = sum(p.stat().st_size for p in (data / "logs").glob("*.mcap"))
+                sizes[name] = log_bytes / 1e6 / frames
+                rates[name].append(rate)
+                print(f"run {repeat + 1} {name:13s} {frames} frames  {rate:.2f} frames/s  "
+                      f"(CLI wall {wall:.0f} s)  {sizes[name]:.3f} MB a frame", flush=True)  # fmt: skip
+        means = {name: sum(values) / len(values) for name, values in rates.items()}
+        print(f"base {args.base}: {means['base']:.2f} frames/s; working tree: "
+              f"{means['working tree']:.2f} frames/s; ratio {means['working tree'] / means['base']:.3f}; "
+              f"log {sizes['base']:.3f} -> {sizes['working tree']:.3f} MB a frame")  # fmt: skip
+    finally:
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(folder / "base")],
+                       capture_output=True)  # fmt: skip
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
