@@ -2,13 +2,15 @@
 alternating, so that a change's cost is measured against what users ran before it.
 
     python scripts/bench_versions.py --base REV [--clips 16] [--seed 0] [--max-frames 30]
-        [--repeats 2] [--workers auto] [-- EXTRA COLLECT ARGS]
+        [--repeats 2] [--workers auto] [--base-tree DIR] [-- EXTRA COLLECT ARGS]
 
 The clips are `drivee2e synth --clips N --seed S` (every weather and time of day the seed
 draws), curated once; each run collects all of them into a fresh logs folder with
 `--workers auto` (the host plan) and `--max-frames` frames per clip (omit it for whole clips).
-The base version is a git worktree of REV imported ahead of the installed package; the other is
-the working tree. Prints each run's frames/s (from the CLI's summary line), the mean per
+The base version is a git worktree of REV (or, with `--base-tree`, a folder holding that
+version's files, for a machine without the repository: `git archive REV | tar -x -C DIR`)
+imported ahead of the installed package; the other is the installed package (the working
+tree, installed editable). Prints each run's frames/s (from the CLI's summary line), the mean per
 version, the ratio (working tree / base) and MB of log per frame.
 """
 
@@ -28,12 +30,19 @@ ROOT = Path(__file__).resolve().parent.parent
 RATE = re.compile(r"(\d+) frames in ([\d.]+) s \(([\d.]+) frames/s\)")
 
 
-def base_tree(revision: str, folder: Path) -> Path:
-    """A worktree of `revision` importable from a PYTHONPATH entry (`collect/` and `loaders/`
-    linked into the package, as the installed package maps them)."""
+def base_tree(revision: str, folder: Path, files: Path | None) -> Path:
+    """A worktree of `revision` (or a copy of `files`) importable from a PYTHONPATH entry
+    (`collect/` and `loaders/` linked into the package, as the installed package maps them)."""
     tree = folder / "base"
-    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), revision],
-                   check=True, capture_output=True)  # fmt: skip
+    if files is not None:
+        shutil.copytree(
+            files,
+            tree,
+            ignore=shutil.ignore_patterns("drivee2e_data/collect", "drivee2e_data/loaders"),
+        )
+    else:
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), revision],
+                       check=True, capture_output=True)  # fmt: skip
     for name in ("collect", "loaders"):
         (tree / "drivee2e_data" / name).symlink_to(tree / name, target_is_directory=True)
     return tree
@@ -48,7 +57,9 @@ def cli(arguments: list[str], pythonpath: Path | None) -> str:
         "-c",
         "import sys; from drivee2e_data.cli import main; sys.exit(main())",
     ]
-    done = subprocess.run([*command, *arguments], env=environment, capture_output=True, text=True)
+    # run outside the checkout: `python -c` puts the working directory first on sys.path
+    done = subprocess.run([*command, *arguments], env=environment, capture_output=True, text=True,
+                          cwd=tempfile.gettempdir())  # fmt: skip
     if done.returncode != 0:
         raise SystemExit(f"drivee2e {' '.join(arguments)} failed:\n{done.stdout}\n{done.stderr}")
     return done.stdout + done.stderr
@@ -62,11 +73,12 @@ def main() -> None:
     parser.add_argument("--max-frames", type=int, default=30, help="0: whole clips")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--workers", default="auto")
+    parser.add_argument("--base-tree", type=Path, default=None, help="the base version's files")
     parser.add_argument("extra", nargs="*", help="more `drivee2e collect` arguments (after --)")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="bench_versions_"))
     try:
-        base = base_tree(args.base, folder)
+        base = base_tree(args.base, folder, args.base_tree)
         data = folder / "data"
         cli(
             ["synth", "--out", str(data), "--clips", str(args.clips), "--seed", str(args.seed)],

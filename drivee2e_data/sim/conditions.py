@@ -229,6 +229,8 @@ NIGHT_AMBIENT = (0.045, 0.05, 0.07)
 MOONLIGHT_RGB = (0.05, 0.055, 0.075)
 STREET_LAMP_RGB = (1.0, 0.78, 0.48)  # high-pressure sodium and warm LED: orange-white
 STREET_LAMP_REACH_M = 14.0
+STREET_LAMP_GAIN = 1.6  # light on the ground right under a lamp, against the noon sun's ~0.6
+LAMP_RASTER_M = 0.5  # the lamps' light varies over metres: a coarse raster is enough
 HEADLIGHT_RGB = (1.1, 1.05, 0.95)
 HEADLIGHT_REACH_M = 45.0
 LAMPS_ON_BELOW_RAD = math.radians(3.0)  # street lamps switch on when the sun sinks below this
@@ -255,7 +257,6 @@ class ShaderLook:
     lamps_on: bool  # street lamps and lit windows
     headlights: bool  # vehicles' headlights (dusk, night, fog)
     lamp_rgb: tuple[float, float, float] = STREET_LAMP_RGB
-    lamp_reach_m: float = STREET_LAMP_REACH_M
     spot_rgb: tuple[float, float, float] = HEADLIGHT_RGB
     spot_reach_m: float = HEADLIGHT_REACH_M
 
@@ -308,3 +309,43 @@ def shader_look(conditions: Conditions, origin: GeoOrigin) -> ShaderLook:
         wetness, elevation < LAMPS_ON_BELOW_RAD,
         elevation < HEADLIGHTS_BELOW_RAD or weather == Weather.FOG,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class LampRaster:
+    """The street lamps' light on level ground per cell (cell (0, 0)'s corner at `origin_xy_m`,
+    rows along y), in units of the lamp colour's intensity."""
+
+    origin_xy_m: tuple[float, float]
+    cell_m: float
+    values: NDArray[np.float32]  # (rows, columns)
+
+
+def lamp_raster(
+    lamps_m: NDArray[np.float64], bounds_m: tuple[float, float, float, float]
+) -> LampRaster:
+    """Light on level ground from street lamps at `lamps_m` `(L, 3)`, over `bounds_m` (x0, y0,
+    x1, y1) plus the lamps' reach: each lamp an inverse-square-like falloff (gain
+    `STREET_LAMP_GAIN` under it, `STREET_LAMP_REACH_M` its scale) times the cosine of its light's
+    angle to the ground, fading out between 1.5 and 2.5 reaches. Precomputed once, so the
+    shader reads one texel for every lamp of the map instead of looping over a few."""
+    reach = 2.5 * STREET_LAMP_REACH_M
+    x0, y0, x1, y1 = bounds_m
+    origin = np.array([x0 - reach, y0 - reach])
+    columns = int(np.ceil((x1 - x0 + 2 * reach) / LAMP_RASTER_M))
+    rows = int(np.ceil((y1 - y0 + 2 * reach) / LAMP_RASTER_M))
+    xs = origin[0] + (np.arange(columns) + 0.5) * LAMP_RASTER_M
+    ys = origin[1] + (np.arange(rows) + 0.5) * LAMP_RASTER_M
+    values = np.zeros((rows, columns), np.float32)
+    for x, y, height in np.asarray(lamps_m, dtype=np.float64).reshape(-1, 3):
+        # only the window of cells the lamp reaches
+        c0, c1 = np.searchsorted(xs, [x - reach, x + reach])
+        r0, r1 = np.searchsorted(ys, [y - reach, y + reach])
+        dx, dy = xs[c0:c1][None, :] - x, ys[r0:r1][:, None] - y
+        distance = np.sqrt(dx * dx + dy * dy + height * height)
+        falloff = STREET_LAMP_GAIN / (1.0 + 2.0 * (distance / STREET_LAMP_REACH_M) ** 2)
+        fade = np.clip((reach - distance) / STREET_LAMP_REACH_M, 0.0, 1.0)
+        values[r0:r1, c0:c1] += (falloff * fade * fade * (3 - 2 * fade) * height / distance).astype(
+            np.float32
+        )
+    return LampRaster((float(origin[0]), float(origin[1])), LAMP_RASTER_M, values)

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim.conditions import ShaderLook
+from drivee2e_data.sim.conditions import LampRaster, ShaderLook, lamp_raster
 from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
 from drivee2e_data.sim.twin import TwinMesh, WearRaster, box_mesh, prism_mesh, sphere_mesh
 
@@ -52,7 +52,7 @@ LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's dayli
 SHADOW_MAP_PX = 2048
 SHADOW_HALF_WIDTH_M = 75.0
 SHADOW_DEPTH_M = 600.0
-MAX_LAMPS, MAX_SPOTS = 16, 12  # the shaders' arrays (scene.frag's MAX_LAMPS, MAX_SPOTS)
+MAX_SPOTS = 6  # the shader's headlight array (scene.frag's MAX_SPOTS)
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
 
 
@@ -376,6 +376,8 @@ class GLRenderer:
             self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.shadow_framebuffer = context.framebuffer(depth_attachment=self.shadow_texture)
             self.wear_texture = _wear_texture(context, wear)
+            self.lamp_texture = _float_texture(context, np.zeros((1, 1), np.float32))
+        self.lamp_light: LampRaster | None = None
         self.wear = wear
         self.dynamic_count = 0
         self.bodies: dict[int, _Body] = {}
@@ -416,17 +418,18 @@ class GLRenderer:
             "sky_ambient": look.sky_ambient, "ground_ambient": look.ground_ambient,
             "shadows": float(look.shadows), "fog_rgb": look.fog_rgb,
             "fog_density": look.fog_density, "wetness": look.wetness,
-            "lamps_on": float(look.lamps_on), "lamp_rgb": look.lamp_rgb,
-            "lamp_reach_m": look.lamp_reach_m, "spot_rgb": look.spot_rgb,
+            "lamps_on": float(look.lamps_on), "lamp_rgb": look.lamp_rgb, "spot_rgb": look.spot_rgb,
             "spot_reach_m": look.spot_reach_m, "far_m": far_m,
             "camera_position": tuple(float(v) for v in camera_position),
         }  # fmt: skip
         for program in (self.program, self.sky_program):
             for name, value in values.items():
                 _set(program, name, value)
-        lamps = self._nearest_lamps() if look.lamps_on else np.zeros((0, 3))
-        _set(self.program, "lamp_count", len(lamps))
-        _set_array(self.program, "lamp_positions", lamps, MAX_LAMPS)
+        if look.lamps_on:
+            raster = self._lamp_raster()
+            extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
+            _set(self.program, "lamp_origin", raster.origin_xy_m)
+            _set(self.program, "lamp_extent", tuple(float(v) for v in extent))
         spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
         _set(self.program, "spot_count", len(spots))
         _set_array(self.program, "spot_positions", np.array([s[0] for s in spots]), MAX_SPOTS)
@@ -439,14 +442,22 @@ class GLRenderer:
             _set(self.program, "wear_extent", (1.0, 1.0))
         _set(self.program, "shadow_map", 0)
         _set(self.program, "wear_map", 1)
+        _set(self.program, "lamp_map", 2)
 
-    def _nearest_lamps(self) -> NDArray[np.float64]:
-        """The street lamps nearest the focus, at most `MAX_LAMPS`, in a fixed order."""
-        if not len(self.street_lamps):
-            return self.street_lamps
-        distance = np.hypot(*(self.street_lamps[:, :2] - self.lights.focus_xy_m).T)
-        nearest = np.sort(np.argsort(distance, kind="stable")[:MAX_LAMPS])
-        return self.street_lamps[nearest]
+    def _lamp_raster(self) -> LampRaster:
+        """The street lamps' light (`conditions.lamp_raster`), made and uploaded on the first
+        draw that needs it (only clips with the lamps on do)."""
+        if self.lamp_light is None:
+            lamps = self.street_lamps
+            if len(lamps):
+                low, high = lamps[:, :2].min(axis=0), lamps[:, :2].max(axis=0)
+                self.lamp_light = lamp_raster(lamps, (low[0], low[1], high[0], high[1]))
+            else:
+                self.lamp_light = LampRaster((0.0, 0.0), 1.0, np.zeros((1, 1), np.float32))
+            values = np.ascontiguousarray(self.lamp_light.values)
+            self.lamp_texture.release()
+            self.lamp_texture = _float_texture(self.context, values)
+        return self.lamp_light
 
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
@@ -605,17 +616,20 @@ class GLRenderer:
                 rotation_only = view_matrix.copy()
                 rotation_only[:3, 3] = 0.0
                 inverse = np.linalg.inv(projection_matrix @ rotation_only)
-                self.sky_program["inverse_view_projection"].write(
-                    inverse.T.astype(np.float32).tobytes()
-                )
-                self.context.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-                self.sky_array.render(moderngl.TRIANGLES, vertices=3)
+                _set_matrix(self.sky_program, "inverse_view_projection", inverse)
                 self.context.enable(moderngl.DEPTH_TEST)
                 self.program["mvp"].write(matrix.T.astype(np.float32).tobytes())
                 _set_matrix(self.program, "shadow_matrix", sun_matrix)
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
+                self.lamp_texture.use(location=2)
                 self._draw_geometry("scene")
+                # the sky last, on the far plane, where nothing was drawn: the depth test spares
+                # shading the sky behind the scene
+                self.context.disable(moderngl.CULL_FACE)
+                self.context.depth_func = "<="
+                self.sky_array.render(moderngl.TRIANGLES, vertices=3)
+                self.context.depth_func = "<"
             # read into fresh arrays: writable, and no copy of bytes
             rgb = np.empty((height, width, 3), np.uint8)
             framebuffer.read_into(rgb, components=3, attachment=0)
@@ -640,7 +654,8 @@ class GLRenderer:
                 array.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
                              self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
-                             self.wear_texture, self.program, self.labels_program,
+                             self.wear_texture, self.lamp_texture, self.program,
+                             self.labels_program,
                              self.sky_program, self.shadow_program):  # fmt: skip
                 resource.release()
         self.framebuffers = {}
@@ -652,6 +667,16 @@ def _wear_texture(context, wear: WearRaster | None):
 
     values = np.zeros((1, 1), np.uint8) if wear is None else wear.values
     texture = context.texture(values.shape[::-1], 1, np.ascontiguousarray(values).tobytes())
+    texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    texture.repeat_x = texture.repeat_y = False
+    return texture
+
+
+def _float_texture(context, values: NDArray[np.float32]):
+    """A single-channel float texture of `(rows, columns)` values, filtered linearly, clamped."""
+    import moderngl
+
+    texture = context.texture(values.shape[::-1], 1, values.tobytes(), dtype="f4")
     texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
     texture.repeat_x = texture.repeat_y = False
     return texture
