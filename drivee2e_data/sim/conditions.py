@@ -254,8 +254,8 @@ class ShaderLook:
     fog_rgb: tuple[float, float, float]
     fog_density: float  # per metre: 3 / visibility (contrast 5% at the visibility distance)
     wetness: float
-    lamps_on: bool  # street lamps and lit windows
-    headlights: bool  # vehicles' headlights (dusk, night, fog)
+    lamps_on: bool  # street lamps, lit windows, and the headlights' cones on the road
+    headlights: bool  # vehicles' head and tail lamps glow (dusk, night, fog)
     lamp_rgb: tuple[float, float, float] = STREET_LAMP_RGB
     spot_rgb: tuple[float, float, float] = HEADLIGHT_RGB
     spot_reach_m: float = HEADLIGHT_REACH_M

@@ -24,7 +24,7 @@ import functools
 import logging
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,13 +56,28 @@ MAX_SPOTS = 6  # the shader's headlight array (scene.frag's MAX_SPOTS)
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
 
 
-def shader_source(name: str) -> str:
+def shader_source(name: str, defines: Sequence[str] = ()) -> str:
     """A shader file's text; the fragment shaders of the sky and the scene begin with
-    common.glsl's (noise, sky colour)."""
+    common.glsl's (noise, sky colour), after `defines` (scene.frag's variants)."""
     text = (SHADER_DIR / name).read_text()
     if name in ("sky.frag", "scene.frag"):
-        return "#version 330\n" + (SHADER_DIR / "common.glsl").read_text() + text
+        header = "#version 330\n" + "".join(f"#define {define}\n" for define in defines)
+        return header + (SHADER_DIR / "common.glsl").read_text() + text
     return text
+
+
+def scene_variant(look: ShaderLook) -> tuple[str, ...]:
+    """The defines of the scene shader a look needs (`scene.frag`'s variants)."""
+    variant = []
+    if look.shadows:
+        variant.append("SHADOWS")
+    if look.lamps_on:  # by day (fog) the headlights' cones are lost in daylight: lamps only
+        variant.append("NIGHT")
+    if look.wetness > 0.0:
+        variant.append("WET")
+    if look.fog_density > 0.0:
+        variant.append("FOG")
+    return tuple(variant)
 
 
 @functools.cache
@@ -353,8 +368,6 @@ class GLRenderer:
         self.lamps = frozenset(lamps)
         self.street_lamps = np.asarray(street_lamps, dtype=np.float64).reshape(-1, 3)
         with current(context):
-            self.program = context.program(vertex_shader=shader_source("scene.vert"),
-                                           fragment_shader=shader_source("scene.frag"))  # fmt: skip
             self.labels_program = context.program(vertex_shader=shader_source("scene.vert"),
                                                   fragment_shader=shader_source("labels.frag"))  # fmt: skip
             self.sky_program = context.program(vertex_shader=shader_source("sky.vert"),
@@ -365,7 +378,8 @@ class GLRenderer:
             self.static_count = len(vertices)
             self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
-            self._make_arrays()
+            self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
+            self.scene_programs: dict[tuple[str, ...], object] = {}  # moderngl programs
             corners = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
             self.sky_buffer = context.buffer(corners.tobytes())
             self.sky_array = context.vertex_array(
@@ -391,17 +405,35 @@ class GLRenderer:
         self.framebuffers: dict[tuple[int, int], moderngl.Framebuffer] = {}
         self.set_look(look)
 
-    def _make_arrays(self) -> None:
-        """The programs' vertex arrays over the static and dynamic buffers (current context)."""
-        self.arrays = {}
-        for name, buffer in (("static", self.static_buffer), ("dynamic", self.dynamic_buffer)):
-            for program_name, program in (("scene", self.program), ("labels", self.labels_program)):
-                self.arrays[(name, program_name)] = self.context.vertex_array(
+    def _scene_program(self, variant: tuple[str, ...]):
+        """The scene shader compiled with `variant`'s defines (once per variant)."""
+        program = self.scene_programs.get(variant)
+        if program is None:
+            program = self.context.program(vertex_shader=shader_source("scene.vert"),
+                                           fragment_shader=shader_source("scene.frag", variant))  # fmt: skip
+            self.scene_programs[variant] = program
+        return program
+
+    def _array(self, buffer_name: str, program_key: object):
+        """The vertex array feeding a program from the static or dynamic buffer (made once per
+        pair, again after the dynamic buffer grows)."""
+        array = self.arrays.get((buffer_name, program_key))
+        if array is None:
+            buffer = self.static_buffer if buffer_name == "static" else self.dynamic_buffer
+            if program_key == "shadow":
+                array = self.context.vertex_array(self.shadow_program,
+                                                  [(buffer, POSITION_ONLY, "in_position")])  # fmt: skip
+            else:
+                program = (
+                    self.labels_program
+                    if program_key == "labels"
+                    else self._scene_program(program_key)
+                )
+                array = self.context.vertex_array(
                     program, [(buffer, VERTEX_FORMAT, *VERTEX_INPUTS)], skip_errors=True
                 )
-            self.arrays[(name, "shadow")] = self.context.vertex_array(
-                self.shadow_program, [(buffer, POSITION_ONLY, "in_position")]
-            )
+            self.arrays[(buffer_name, program_key)] = array
+        return array
 
     def set_look(self, look: ShaderLook) -> None:
         """The clip's sky, light and weather (the uniforms of `sim/shaders`)."""
@@ -409,8 +441,9 @@ class GLRenderer:
         self.shadowed = None
 
     def _apply_look(
-        self, look: ShaderLook, camera_position: NDArray[np.float64], far_m: float
+        self, program, look: ShaderLook, camera_position: NDArray[np.float64], far_m: float
     ) -> None:
+        """`look`'s uniforms into the scene `program` and the sky's."""
         values = {
             "light_direction": look.light_direction, "sun_rgb": look.sun_rgb,
             "zenith_rgb": look.zenith_rgb, "horizon_rgb": look.horizon_rgb,
@@ -422,27 +455,27 @@ class GLRenderer:
             "spot_reach_m": look.spot_reach_m, "far_m": far_m,
             "camera_position": tuple(float(v) for v in camera_position),
         }  # fmt: skip
-        for program in (self.program, self.sky_program):
+        for target in (program, self.sky_program):
             for name, value in values.items():
-                _set(program, name, value)
+                _set(target, name, value)
         if look.lamps_on:
             raster = self._lamp_raster()
             extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
-            _set(self.program, "lamp_origin", raster.origin_xy_m)
-            _set(self.program, "lamp_extent", tuple(float(v) for v in extent))
-        spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
-        _set(self.program, "spot_count", len(spots))
-        _set_array(self.program, "spot_positions", np.array([s[0] for s in spots]), MAX_SPOTS)
-        _set_array(self.program, "spot_directions", np.array([s[1] for s in spots]), MAX_SPOTS)
+            _set(program, "lamp_origin", raster.origin_xy_m)
+            _set(program, "lamp_extent", tuple(float(v) for v in extent))
+        spots = self.lights.headlights[:MAX_SPOTS] if look.headlights and look.lamps_on else ()
+        _set(program, "spot_count", len(spots))
+        _set_array(program, "spot_positions", np.array([s[0] for s in spots]), MAX_SPOTS)
+        _set_array(program, "spot_directions", np.array([s[1] for s in spots]), MAX_SPOTS)
         if self.wear is not None:
-            cells = np.array(self.wear.values.shape[::-1], np.float64) * self.wear.cell_m
-            _set(self.program, "wear_origin", self.wear.origin_xy_m)
-            _set(self.program, "wear_extent", tuple(float(v) for v in cells))
+            cells = np.array(self.wear.values.shape[1::-1], np.float64) * self.wear.cell_m
+            _set(program, "wear_origin", self.wear.origin_xy_m)
+            _set(program, "wear_extent", tuple(float(v) for v in cells))
         else:
-            _set(self.program, "wear_extent", (1.0, 1.0))
-        _set(self.program, "shadow_map", 0)
-        _set(self.program, "wear_map", 1)
-        _set(self.program, "lamp_map", 2)
+            _set(program, "wear_extent", (1.0, 1.0))
+        _set(program, "shadow_map", 0)
+        _set(program, "wear_map", 1)
+        _set(program, "lamp_map", 2)
 
     def _lamp_raster(self) -> LampRaster:
         """The street lamps' light (`conditions.lamp_raster`), made and uploaded on the first
@@ -504,13 +537,9 @@ class GLRenderer:
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
                 for key in [k for k in self.arrays if k[0] == "dynamic"]:
-                    self.arrays[key].release()
+                    self.arrays.pop(key).release()
                 self.dynamic_buffer.release()
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
-                for key in list(self.arrays):
-                    if key[0] == "static":
-                        self.arrays[key].release()
-                self._make_arrays()
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
         self.dynamic_count = len(vertices)
@@ -532,19 +561,19 @@ class GLRenderer:
             self.framebuffers[(width, height)] = framebuffer
         return framebuffer
 
-    def _draw_geometry(self, program_name: str) -> None:
+    def _draw_geometry(self, program_key: object) -> None:
         import moderngl
 
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
         if self.dynamic_count:
             self.context.disable(moderngl.CULL_FACE)
-            self.arrays[("dynamic", program_name)].render(
+            self._array("dynamic", program_key).render(
                 moderngl.TRIANGLES, vertices=self.dynamic_count
             )
         if self.static_count:
             self.context.enable(moderngl.CULL_FACE)
-            self.arrays[("static", program_name)].render(
+            self._array("static", program_key).render(
                 moderngl.TRIANGLES, vertices=self.static_count
             )
 
@@ -558,11 +587,9 @@ class GLRenderer:
         self.context.disable(moderngl.CULL_FACE)
         self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
         if self.dynamic_count:
-            self.arrays[("dynamic", "shadow")].render(
-                moderngl.TRIANGLES, vertices=self.dynamic_count
-            )
+            self._array("dynamic", "shadow").render(moderngl.TRIANGLES, vertices=self.dynamic_count)
         if self.static_count:
-            self.arrays[("static", "shadow")].render(moderngl.TRIANGLES, vertices=self.static_count)
+            self._array("static", "shadow").render(moderngl.TRIANGLES, vertices=self.static_count)
 
     def draw(
         self,
@@ -611,19 +638,21 @@ class GLRenderer:
                 self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
                 self._draw_geometry("labels")
             else:
-                self._apply_look(shader_look, camera_position, far_m)
-                _set(self.program, "shadows", float(shadows))
+                variant = scene_variant(replace(shader_look, shadows=shadows))
+                program = self._scene_program(variant)
+                self._apply_look(program, shader_look, camera_position, far_m)
+                _set(program, "shadows", float(shadows))
                 rotation_only = view_matrix.copy()
                 rotation_only[:3, 3] = 0.0
                 inverse = np.linalg.inv(projection_matrix @ rotation_only)
                 _set_matrix(self.sky_program, "inverse_view_projection", inverse)
                 self.context.enable(moderngl.DEPTH_TEST)
-                self.program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                _set_matrix(self.program, "shadow_matrix", sun_matrix)
+                program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+                _set_matrix(program, "shadow_matrix", sun_matrix)
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
                 self.lamp_texture.use(location=2)
-                self._draw_geometry("scene")
+                self._draw_geometry(variant)
                 # the sky last, on the far plane, where nothing was drawn: the depth test spares
                 # shading the sky behind the scene
                 self.context.disable(moderngl.CULL_FACE)
@@ -654,19 +683,22 @@ class GLRenderer:
                 array.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
                              self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
-                             self.wear_texture, self.lamp_texture, self.program,
-                             self.labels_program,
-                             self.sky_program, self.shadow_program):  # fmt: skip
+                             self.wear_texture, self.lamp_texture, self.labels_program,
+                             self.sky_program, self.shadow_program,
+                             *self.scene_programs.values()):  # fmt: skip
                 resource.release()
         self.framebuffers = {}
 
 
 def _wear_texture(context, wear: WearRaster | None):
-    """The road-wear raster as a single-channel texture (a blank texel without one)."""
+    """The ground-detail raster as a two-channel texture (wear, mottle; a blank texel without
+    one)."""
     import moderngl
 
-    values = np.zeros((1, 1), np.uint8) if wear is None else wear.values
-    texture = context.texture(values.shape[::-1], 1, np.ascontiguousarray(values).tobytes())
+    values = np.full((1, 1, 2), 128, np.uint8) if wear is None else wear.values
+    texture = context.texture(
+        (values.shape[1], values.shape[0]), 2, np.ascontiguousarray(values).tobytes()
+    )
     texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
     texture.repeat_x = texture.repeat_y = False
     return texture

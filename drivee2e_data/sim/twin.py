@@ -65,7 +65,9 @@ STREET_LAMP_REACH_M = 110.0  # lamps stand within this of the junction's centre
 POLE_RGBA = (0.32, 0.33, 0.34, 1.0)
 STREET_LAMP_RGBA = (1.0, 0.86, 0.62, 1.0)  # the lamp's face, shining at night
 MAST_ARM_OVER_ROAD_M = 1.0  # a head this far inside the road hangs from a mast arm
-WEAR_CELL_M = 0.15  # the wheel-track raster's cell
+WEAR_CELL_M = 0.2  # the ground-detail raster's cell (wheel tracks are 0.5 m wide)
+GROUND_DETAIL_MARGIN_M = 40.0  # the raster reaches this far beyond the road (grass near it)
+MOTTLE_SPACINGS_M = (6.0, 1.5)  # patches in asphalt and grass: two scales of value noise
 WHEEL_TRACK_OFFSET_M = 0.85  # tracks run this far either side of a lane's centre line
 WHEEL_TRACK_WIDTH_M = 0.5
 KIND_MATERIAL = {"ground": Material.GRASS, "road": Material.ASPHALT,
@@ -150,12 +152,14 @@ class TwinMesh:
 
 @dataclass(frozen=True)
 class WearRaster:
-    """How worn the road is per cell (0..1: the wheel tracks along the lanes), cell (0, 0)'s
-    corner at `origin_xy_m`, rows along y."""
+    """Ground detail per cell (cell (0, 0)'s corner at `origin_xy_m`, rows along y): channel
+    0 how worn the road is (the wheel tracks along the lanes), channel 1 a mottle of patches for
+    asphalt and grass; 0..255. A texel read replaces two value-noise evaluations a pixel in the
+    shader (a tenth of a camera image on llvmpipe)."""
 
     origin_xy_m: tuple[float, float]
     cell_m: float
-    values: NDArray[np.uint8]  # (rows, columns), 255 fully worn
+    values: NDArray[np.uint8]  # (rows, columns, 2)
 
 
 @dataclass
@@ -615,15 +619,18 @@ def street_lamp_sites(
 
 
 def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
-    """The wheel tracks: two softened bands along every lane, `WHEEL_TRACK_OFFSET_M` either side
-    of its centre line, rasterised at `WEAR_CELL_M`."""
+    """The ground detail: the wheel tracks (two softened bands along every lane,
+    `WHEEL_TRACK_OFFSET_M` either side of its centre line) and a mottle of patches (value noise
+    at `MOTTLE_SPACINGS_M`, seeded by the map id), rasterised at `WEAR_CELL_M` over the road and
+    `GROUND_DETAIL_MARGIN_M` around it."""
     import cv2
 
+    margin = GROUND_DETAIL_MARGIN_M
     x0, y0, x1, y1 = intersection_map.drivable_union().bounds
-    origin = np.array([x0, y0]) - 2.0
+    origin = np.array([x0, y0]) - margin
     shape = (
-        int(np.ceil((y1 - y0 + 4.0) / WEAR_CELL_M)),
-        int(np.ceil((x1 - x0 + 4.0) / WEAR_CELL_M)),
+        int(np.ceil((y1 - y0 + 2 * margin) / WEAR_CELL_M)),
+        int(np.ceil((x1 - x0 + 2 * margin) / WEAR_CELL_M)),
     )
     values = np.zeros(shape, np.uint8)
     thickness = max(1, round(WHEEL_TRACK_WIDTH_M / WEAR_CELL_M))
@@ -641,7 +648,16 @@ def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
                 )
                 cv2.polylines(values, [points], False, 200, thickness, cv2.LINE_AA, shift=4)
     values = cv2.GaussianBlur(values, (0, 0), 0.35 / WEAR_CELL_M)
-    return WearRaster((float(origin[0]), float(origin[1])), WEAR_CELL_M, values)
+    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
+    mottle = np.zeros(shape, np.float32)
+    for weight, spacing in zip((0.65, 0.35), MOTTLE_SPACINGS_M, strict=True):
+        grid = rng.random((int(shape[0] * WEAR_CELL_M / spacing) + 2,
+                           int(shape[1] * WEAR_CELL_M / spacing) + 2)).astype(np.float32)  # fmt: skip
+        mottle += weight * cv2.resize(grid, shape[::-1], interpolation=cv2.INTER_CUBIC)
+    mottle = np.clip(mottle * 255, 0, 255).astype(np.uint8)
+    return WearRaster(
+        (float(origin[0]), float(origin[1])), WEAR_CELL_M, np.dstack([values, mottle])
+    )
 
 
 def build_twin(intersection_map: IntersectionMap, client: int) -> Twin:

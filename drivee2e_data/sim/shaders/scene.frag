@@ -7,6 +7,10 @@
 // spot_directions[MAX_SPOTS], spot_rgb, spot_reach_m, lamps_on (0 or 1: street lamps and
 // lit windows), wear_map, wear_origin, wear_extent (the road-wear raster: world corner, size
 // in metres).
+// Compiled in variants (the renderer prepends the defines that a clip's look needs: features
+// a clip does not use cost nothing, where a uniform switch still cost a third of an image on
+// llvmpipe): SHADOWS (the sun's shadow map), NIGHT (street lamps, headlights, lit windows),
+// WET (darker, glossy ground), FOG (fog by depth).
 #define MAX_SPOTS 6
 #define SPOT_GAIN 3.0
 #define LAMP_WALL_SHARE 0.35  // a wall gets this share of what level ground under it gets
@@ -56,6 +60,9 @@ layout(location = 1) out float body_out;
 layout(location = 2) out float depth_out;
 
 float sunlit() {
+#ifndef SHADOWS
+    return 1.0;
+#else
     if (shadows < 0.5) return 1.0;
     vec3 p = shadow_position.xyz / shadow_position.w * 0.5 + 0.5;
     if (any(lessThan(p.xy, vec2(0.0))) || any(greaterThan(p.xy, vec2(1.0)))) return 1.0;
@@ -64,6 +71,7 @@ float sunlit() {
     // shadows fade out at the map's border instead of ending on a line
     vec2 edge = min(p.xy, 1.0 - p.xy);
     return mix(1.0, lit, smoothstep(0.0, 0.08, min(edge.x, edge.y)));
+#endif
 }
 
 // the albedo of the procedural materials, and how shiny they are (x: specular share,
@@ -74,27 +82,26 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
     shine = vec2(0.0, 1.0);
     glow = 0.0;
     if (material == ASPHALT) {
-        float grain = noise(p * 9.0) - 0.5;
-        float patches = noise(p * 0.18) - 0.5;
-        vec2 wear_uv = (p - wear_origin) / wear_extent;
-        float wear = texture(wear_map, wear_uv).r;
-        return base * (1.0 + 0.22 * grain * fine + 0.35 * patches) * (1.0 - 0.28 * wear);
+        float grain = hash(floor(p * 9.0)) - 0.5;  // aggregate: a speckle, one hash a cell
+        vec2 ground = texture(wear_map, (p - wear_origin) / wear_extent).rg;  // wear, mottle
+        return base * (1.0 + 0.22 * grain * fine + 0.35 * (ground.g - 0.5)) * (1.0 - 0.28 * ground.r);
     }
     if (material == MARKING) {
-        return base * (0.88 + 0.18 * noise(p * 2.5) * (0.5 + 0.5 * fine));
+        return base * (0.9 + 0.16 * hash(floor(p * 4.0)) * fine);
     }
     if (material == PAVEMENT) {
         vec2 slab = fract(p / vec2(0.6, 0.6));
         float joint = step(0.06, slab.x) * step(0.06, slab.y);
         float tone = 0.92 + 0.16 * hash(floor(p / 0.6));
-        return base * tone * mix(0.8, 1.0, mix(1.0, joint, fine)) * (0.95 + 0.1 * noise(p * 4.0));
+        return base * tone * mix(0.8, 1.0, mix(1.0, joint, fine));
     }
     if (material == GRASS) {
-        return base * (0.72 + 0.5 * noise(p * 0.35)) * (1.0 + 0.18 * (noise(p * 6.0) - 0.5) * fine);
+        float mottle = texture(wear_map, (p - wear_origin) / wear_extent).g;
+        return base * (0.72 + 0.5 * mottle) * (1.0 + 0.2 * (hash(floor(p * 6.0)) - 0.5) * fine);
     }
     if (material == FOLIAGE) {
         vec2 q = world_position.xy * 2.2 + world_position.z * 1.7;
-        return base * (0.6 + 0.7 * noise(q)) * (0.85 + 0.3 * noise(q * 3.1));
+        return base * (0.6 + 0.7 * noise(q)) * (0.9 + 0.2 * hash(floor(q * 3.1)));
     }
     if (material == FACADE) {
         if (abs(n.z) > 0.5) return base * 0.55;  // roofs: dark gravel
@@ -109,11 +116,13 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
             shine = vec2(0.5, 80.0);
             // some windows lit at night, by a hash of the window
             float chance = hash(cell + floor(world_position.xy / 50.0));
+#ifdef NIGHT
             glow = lamps_on * step(0.75, chance);
+#endif
             vec3 warm = vec3(0.95, 0.78, 0.45) * (0.55 + 1.8 * (chance - 0.75));
             return mix(vec3(0.12, 0.14, 0.17), warm, glow);
         }
-        return base * band * (0.92 + 0.12 * noise(vec2(u * 3.0, v * 3.0)));
+        return base * band * (0.94 + 0.1 * hash(cell));
     }
     if (material == PAINT) shine = vec2(0.35, 40.0);
     if (material == GLASS) shine = vec2(0.7, 120.0);
@@ -123,31 +132,36 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
 
 void main() {
     vec3 n = normalize(normal);
-    vec3 view = normalize(camera_position - world_position);
-    if (dot(n, view) < 0.0 && material != FOLIAGE) n = -n;  // thin parts seen from behind
+    if (!gl_FrontFacing) n = -n;  // thin parts of actors (drawn two-sided) seen from behind
     vec2 shine;
     float glow;
     vec3 base = albedo(colour, n, shine, glow);
+#ifdef WET
     bool ground = material == ASPHALT || material == MARKING || material == PAVEMENT
         || material == GRASS;
-    if (ground && wetness > 0.0) {  // wet surfaces darken and turn glossy
+    if (ground) {  // wet surfaces darken and turn glossy
         base *= 1.0 - 0.3 * wetness;
         shine = mix(shine, vec2(0.9, 60.0), wetness * (material == GRASS ? 0.2 : 1.0));
     }
+#endif
     float sun = sunlit();
     vec3 ambient = mix(ground_ambient, sky_ambient, 0.5 + 0.5 * n.z);
     vec3 lit = base * (ambient + sun * sun_rgb * max(dot(n, light_direction), 0.0));
     float fresnel = 0.0;
     if (shine.x > 0.0) {  // glossy: paint, glass, lit windows, wet ground
+        vec3 view = normalize(camera_position - world_position);
         vec3 half_vector = normalize(light_direction + view);
         lit += sun * shine.x * sun_rgb * pow(max(dot(n, half_vector), 0.0), shine.y);
         // the sky seen in glossy surfaces: Schlick's Fresnel term
         fresnel = 0.04 + 0.96 * pow(1.0 - max(dot(n, view), 0.0), 5.0);
         if (shine.x > 0.3) {
             vec3 reflected = reflect(-view, n);
-            lit = mix(lit, sky_colour(reflected) * 0.8, clamp(fresnel * shine.x, 0.0, 0.85));
+            // the sky's gradient alone (its clouds in a reflection cost a tenth of an image)
+            vec3 sky = mix(horizon_rgb, zenith_rgb, clamp(reflected.z, 0.0, 1.0));
+            lit = mix(lit, sky * 0.8, clamp(fresnel * shine.x, 0.0, 0.85));
         }
     }
+#ifdef NIGHT
     if (lamps_on > 0.5) {  // street lamps: their light on level ground, read from a raster
         float level = texture(lamp_map, (world_position.xy - lamp_origin) / lamp_extent).r;
         float facing = LAMP_WALL_SHARE + (1.0 - LAMP_WALL_SHARE) * max(n.z, 0.0);
@@ -170,11 +184,16 @@ void main() {
         float facing = clamp((dot(n, to_light) * inverse + 0.6) / 1.6, 0.0, 1.0);
         lit += (SPOT_GAIN * cone * reach * reach * facing) * spot_rgb * (base + 0.5 * shine.x);
     }
+#endif
     float shining = emission;
     if (material == STREET_LAMP) shining = lamps_on;
     lit = mix(lit, colour, clamp(shining, 0.0, 1.0));  // lamps shine their own colour
     lit = mix(lit, base, glow);
+#ifdef FOG
     vec3 result = mix(fog_rgb, lit, exp(-fog_density * eye_depth));
+#else
+    vec3 result = lit;
+#endif
     rgba = vec4(clamp(result, 0.0, 1.0), 1.0);
     body_out = body;
     depth_out = eye_depth;
