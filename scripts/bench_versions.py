@@ -65,6 +65,50 @@ def cli(arguments: list[str], pythonpath: Path | None) -> str:
     return done.stdout + done.stderr
 
 
+RENDER_SNIPPET = """
+import sys, time
+from pathlib import Path
+from drivee2e_data import store
+from drivee2e_data.sensors.camera import camera_to_world
+from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.sensors.rig import default_rig
+from drivee2e_data.sim.world import World
+root, frames = Path(sys.argv[1]), int(sys.argv[2])
+cameras = default_rig().cameras
+for scenario_id in store.scenario_ids(root):
+    scenario = store.read_scenario(root, scenario_id)
+    with World(store.read_map(root, scenario.map_id), scenario, "gl") as world:
+        ego, motion = scenario.ego, ego_motion(scenario)
+        times = []
+        for frame in range(frames + 1):
+            world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+            world.set_time(frame)
+            start = time.perf_counter()
+            for camera in cameras:
+                pose = camera_to_world(camera, motion.ego_to_world(frame))
+                eye = pose[:3, 3]
+                world.render(eye, eye + 10 * pose[:3, 2], camera.width, camera.height,
+                             camera.vertical_fov_deg, near_m=0.5, far_m=200.0, native=True)
+            if frame:  # the first frame compiles and uploads
+                times.append(time.perf_counter() - start)
+        conditions = scenario.conditions
+        print(scenario_id, conditions.weather.value, conditions.time_of_day.value,
+              f"{1000 * sum(times) / len(times):.1f}", flush=True)
+"""
+
+
+def render_times(data: Path, pythonpath: Path | None, frames: int) -> dict[str, tuple[str, float]]:
+    """Milliseconds to draw a frame's six cameras, per clip (the version at `pythonpath`)."""
+    environment = dict(os.environ)
+    if pythonpath is not None:
+        environment["PYTHONPATH"] = f"{pythonpath}{os.pathsep}{environment.get('PYTHONPATH', '')}"
+    done = subprocess.run([sys.executable, "-c", RENDER_SNIPPET, str(data), str(frames)],
+                          env=environment, capture_output=True, text=True, check=True,
+                          cwd=tempfile.gettempdir())  # fmt: skip
+    rows = [line.split() for line in done.stdout.splitlines() if line.startswith("synth")]
+    return {row[0]: (f"{row[1]}, {row[2]}", float(row[3])) for row in rows}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--base", required=True, help="git revision to compare against")
@@ -74,6 +118,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--workers", default="auto")
     parser.add_argument("--base-tree", type=Path, default=None, help="the base version's files")
+    parser.add_argument("--render", type=int, default=0, metavar="FRAMES",
+                        help="also time drawing the six cameras over this many frames a clip")  # fmt: skip
     parser.add_argument("extra", nargs="*", help="more `drivee2e collect` arguments (after --)")
     args = parser.parse_args()
     folder = Path(tempfile.mkdtemp(prefix="bench_versions_"))
@@ -105,6 +151,19 @@ def main() -> None:
                 rates[name].append(rate)
                 print(f"run {repeat + 1} {name:13s} {frames} frames  {rate:.2f} frames/s  "
                       f"(CLI wall {wall:.0f} s)  {sizes[name]:.3f} MB a frame", flush=True)  # fmt: skip
+        if args.render:
+            base_times = render_times(data, base, args.render)
+            new_times = render_times(data, None, args.render)
+            print(
+                "clip            conditions               six cameras (ms): base  working tree  ratio"
+            )
+            for clip, (conditions, before) in base_times.items():
+                after = new_times[clip][1]
+                print(f"{clip}  {conditions:24s} {before:8.1f} {after:12.1f} {after / before:6.2f}")
+            total_before = sum(v for _, v in base_times.values())
+            total_after = sum(v for _, v in new_times.values())
+            print(f"mean over clips: {total_before / len(base_times):.1f} -> "
+                  f"{total_after / len(new_times):.1f} ms a frame")  # fmt: skip
         means = {name: sum(values) / len(values) for name, values in rates.items()}
         print(f"base {args.base}: {means['base']:.2f} frames/s; working tree: "
               f"{means['working tree']:.2f} frames/s; ratio {means['working tree'] / means['base']:.3f}; "
