@@ -15,10 +15,13 @@ for deb in .gl/*.deb; do dpkg -x "$deb" /; done
 ldconfig
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
     --target /tmp/site .whl/*.whl
-mkdir -p /tmp/build && tar -xzf .pb/pybullet-3.2.7.tar.gz -C /tmp/build
-(cd /tmp/build/pybullet-3.2.7 && python3 setup.py build_ext --inplace >/tmp/build/log 2>&1)
+if [ ! -d /tmp/build/pybullet-3.2.7/build ]; then  # built once per machine (about a minute)
+    mkdir -p /tmp/build && tar -xzf .pb/pybullet-3.2.7.tar.gz -C /tmp/build
+    (cd /tmp/build/pybullet-3.2.7 && python3 setup.py build_ext --inplace >/tmp/build/log 2>&1)
+fi
 # both extensions: pybullet alone quietly falls back to TinyRenderer
-cp /tmp/build/pybullet-3.2.7/pybullet*.so /tmp/build/pybullet-3.2.7/eglRenderer*.so /tmp/site/
+find /tmp/build/pybullet-3.2.7/build -name "pybullet*.so" -o -name "eglRenderer*.so" \
+    | xargs -I{} cp {} /tmp/site/
 PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation --target /tmp/proj "$repo"
 cat >/tmp/drivee2e_env <<EOF
 export PYTHONPATH=/tmp/proj:/tmp/site

@@ -167,7 +167,7 @@ void main() {
         float facing = LAMP_WALL_SHARE + (1.0 - LAMP_WALL_SHARE) * max(n.z, 0.0);
         float low = clamp(1.0 - world_position.z / 12.0, 0.2, 1.0);  // they shine down
         vec3 lamp = lamp_rgb * (level * facing * low);
-        lit += base * lamp + lamp * (shine.x * (0.3 + fresnel));
+        lit += base * lamp + lamp * (0.35 * shine.x * fresnel);  // a sheen on wet ground
     }
     for (int i = 0; i < spot_count; ++i) {  // headlights: cones along the vehicles' headings
         vec3 to_light = spot_positions[i] - world_position;
@@ -182,7 +182,7 @@ void main() {
         // headlight beams are shaped to throw far along the road: the road, met at a grazing
         // angle, is lit more than a cosine law from one point would give (a wrapped cosine)
         float facing = clamp((dot(n, to_light) * inverse + 0.6) / 1.6, 0.0, 1.0);
-        lit += (SPOT_GAIN * cone * reach * reach * facing) * spot_rgb * (base + 0.5 * shine.x);
+        lit += (SPOT_GAIN * cone * reach * reach * facing) * spot_rgb * (base + 0.12 * shine.x);
     }
 #endif
     float shining = emission;
