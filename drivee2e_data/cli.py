@@ -588,6 +588,13 @@ def _import(args: argparse.Namespace) -> int:
     print(
         f"{len(summary.scenarios)} scenarios and {len(summary.maps)} maps written under {args.out}"
     )
+    for map_id, plane in summary.grounds.items():
+        if plane.source != "flat":
+            print(f"{map_id}: ground levelled to z = 0 from its {plane.source} (removed: "
+                  f"{plane.height_m:+.2f} m at the origin, slope {plane.slope_x:+.3f} x, "
+                  f"{plane.slope_y:+.3f} y, and the road's curvature: {plane.residual_rms_m:.2f} m "
+                  f"RMS; what stays is the flat-ground error, {plane.field_rms_m:.2f} m RMS over "
+                  f"{plane.points} points)")  # fmt: skip
     for recording, cut in summary.cuts.items():
         print(f"{recording} cut into clips:")
         print("\n".join(cut.lines()))

@@ -24,6 +24,7 @@ from drivee2e_data.scenario import AgentClass, BehaviorCategory, BehaviorLabel, 
 from drivee2e_data.sources import synthetic
 from drivee2e_data.sources.common import ImportReport
 from drivee2e_data.sources.cutting import CUT_MODES, CutReport, cut_clips, cut_ego_clips
+from drivee2e_data.sources.ground import GroundPlane, level
 
 
 @dataclass(frozen=True)
@@ -172,6 +173,9 @@ class ImportSummary:
     report: ImportReport
     cuts: dict[str, CutReport] = dataclasses.field(default_factory=dict)  # recording -> its cut
     failures: dict[str, str] = dataclasses.field(default_factory=dict)  # source file -> error
+    grounds: dict[str, GroundPlane] = dataclasses.field(
+        default_factory=dict
+    )  # map -> plane removed
 
 
 def _one(paths: list[Path], what: str, where: Path) -> Path:
@@ -327,9 +331,11 @@ def import_source(
     on_scenario: Callable[[str], None] | None = None,
     cut: str = "ego",
 ) -> ImportSummary:
-    """Import real data of `kind` from `source` into `root`; recordings longer than 1.5 clips
-    are cut into clips (`split_recording`)."""
+    """Import real data of `kind` from `source` into `root`, the road on the twin's ground
+    (`sources.ground.level`); recordings longer than 1.5 clips are cut into clips
+    (`split_recording`)."""
     maps, scenarios, report, failures = _load(kind, Path(source))
+    maps, scenarios, grounds = level(maps, scenarios)
     written, cuts = [], {}
     by_id = {m.map_id: m for m in maps}
     for intersection_map in maps:
@@ -343,7 +349,7 @@ def import_source(
             written.append(piece.scenario_id)
             if on_scenario is not None:
                 on_scenario(piece.scenario_id)
-    return ImportSummary([m.map_id for m in maps], written, report, cuts, failures)
+    return ImportSummary([m.map_id for m in maps], written, report, cuts, failures, grounds)
 
 
 def synthesize_recording(

@@ -1,0 +1,120 @@
+"""One ground for every source: scenes offset by +-25 m and sloped by 5% land on the twin's
+road (z = 0): boxes on it, cameras above it, LiDAR hits on it at the expected range."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivee2e_data.hdmap import Lane
+from drivee2e_data.scenario import AgentClass
+from drivee2e_data.sources.ground import FLAT, fit_ground, level
+from tests.factories import small_map, small_scenario, straight_track
+
+FRAMES = 10
+SLOPE = 0.05
+
+
+def _raised(offset_m: float, slope: float = SLOPE, map_heights: bool = True):
+    """A straight road along x with a car and a walker, everything `offset_m + slope x` up;
+    without `map_heights` the lanes stay at z = 0 (a source whose map has no heights)."""
+    x = np.linspace(-30.0, 80.0, 23)
+    height = offset_m + slope * x
+    centre = np.column_stack([x, np.zeros_like(x), height if map_heights else np.zeros_like(x)])
+    side = np.array([0.0, 1.75, 0.0])
+    lane = Lane("l1", centre, centre + side, centre - side, signal_id="s1")
+    intersection_map = small_map(lanes=(lane,))
+    tracks = []
+    for track_id, agent_class, size in (
+        ("car", AgentClass.CAR, 1.5),
+        ("walker", AgentClass.PEDESTRIAN, 1.7),
+    ):
+        track = straight_track(track_id, FRAMES, agent_class, height_m=np.full(FRAMES, size))
+        z = offset_m + slope * track.x_m + 0.5 * size
+        tracks.append(dataclasses.replace(track, z_m=z))
+    return intersection_map, small_scenario(FRAMES, tracks=tuple(tracks), ego_id="car")
+
+
+@pytest.mark.parametrize("offset_m", [25.0, -25.0])
+@pytest.mark.parametrize("map_heights", [True, False])
+def test_an_offset_sloped_scene_lands_on_the_ground(offset_m: float, map_heights: bool):
+    intersection_map, scenario = _raised(offset_m, map_heights=map_heights)
+    maps, scenarios, planes = level([intersection_map], [scenario])
+    plane = planes[intersection_map.map_id]
+    assert plane.source == ("lanes" if map_heights else "vehicles")
+    assert plane.slope_x == pytest.approx(SLOPE, abs=1e-6) and plane.height_m == pytest.approx(
+        offset_m, abs=1e-6
+    )
+    for track in scenarios[0].tracks:
+        bottom = track.z_m - 0.5 * track.height_m
+        assert np.allclose(bottom, 0.0, atol=1e-6), track.track_id  # boxes on the road
+    assert np.allclose(maps[0].lanes[0].centerline_m[:, 2], 0.0, atol=1e-6)
+    # GNSS still reads the recorded altitude at the origin
+    assert maps[0].origin.altitude_m == pytest.approx(intersection_map.origin.altitude_m + offset_m)
+
+
+def test_a_flat_source_is_left_as_it_is():
+    intersection_map, scenario = _raised(0.0, slope=0.0)
+    assert fit_ground(intersection_map, [scenario]) is FLAT
+    maps, scenarios, _ = level([intersection_map], [scenario])
+    assert maps[0] is intersection_map and scenarios[0] is scenario
+
+
+def test_tracks_already_on_z0_stay_when_only_the_map_carries_elevation():
+    """Argoverse 2's forecasting scenarios: lanes at real elevation, tracks without z."""
+    intersection_map, _ = _raised(22.9)
+    _, on_ground = _raised(0.0, slope=0.0)
+    _, scenarios, _ = level([intersection_map], [on_ground])
+    for before, after in zip(on_ground.tracks, scenarios[0].tracks, strict=True):
+        assert np.array_equal(before.z_m, after.z_m)
+
+
+def test_cameras_sit_above_the_road_and_lidar_hits_it_at_the_expected_range():
+    """The levelled scene in the twin: the ego's front camera sees road below the horizon, and
+    the LiDAR's lowest ring (-30 degrees) reaches the road at its mounting height / sin 30."""
+    from drivee2e_data.sensors import lidar
+    from drivee2e_data.sensors.rig import default_rig
+    from drivee2e_data.sensors.suite import SensorSuite
+    from drivee2e_data.sim.world import World
+
+    intersection_map, scenario = _raised(-25.0)
+    maps, scenarios, _ = level([intersection_map], [scenario])
+    with World(maps[0], scenarios[0], renderer="tiny") as world:
+        suite = SensorSuite(world)
+        ego = scenarios[0].ego
+        world.place_ego(float(ego.x_m[5]), float(ego.y_m[5]), ego.track_id)
+        world.set_time(5)
+        ego_to_world = suite.motion.ego_to_world(5)
+        assert ego_to_world[2, 3] == pytest.approx(0.0, abs=1e-6)  # the ego frame on the road
+        rig = default_rig()
+        lidar_to_world = ego_to_world @ rig.lidar.sensor_to_ego
+        sweep = lidar.sweep(world.client, rig.lidar, lidar_to_world, world.twin.segmentation,
+                            world.twin.paint_raster())  # fmt: skip
+        road = {b for b, k in world.twin.segmentation.items() if k == "road"}
+        lowest = (sweep.ring == sweep.ring.max()) & np.isin(sweep.body, list(road))
+        assert lowest.sum() > 20
+        ranges = np.linalg.norm(sweep.points_m[lowest], axis=1)
+        expected = lidar_to_world[2, 3] / np.sin(np.radians(30.0))
+        assert np.median(ranges) == pytest.approx(expected, rel=0.02)
+        world_points = sweep.points_m[lowest] @ lidar_to_world[:3, :3].T + lidar_to_world[:3, 3]
+        assert np.abs(world_points[:, 2]).max() < 0.05  # on the road, not 25 m below it
+
+
+def test_real_elevation_from_argoverse2_lands_on_the_ground(tmp_path: Path):
+    from conftest import REALDATA
+
+    from drivee2e_data import pipeline, store
+
+    source = REALDATA / "argoverse2" / "sensor-log-7fab2350"
+    if not source.exists():
+        pytest.skip(f"{source} is absent (../shared/realdata)")
+    summary = pipeline.import_source(tmp_path, "av2", source)
+    plane = summary.grounds[summary.maps[0]]
+    assert plane.source == "lanes" and plane.field_rms_m < 0.1
+    scenario = store.read_scenario(tmp_path, summary.scenarios[0])
+    bottoms = np.concatenate([t.z_m[t.valid] - 0.5 * t.height_m[t.valid] for t in scenario.tracks
+                              if t.agent_class.is_motor_vehicle])  # fmt: skip
+    assert np.percentile(np.abs(bottoms), 90) < 0.3
