@@ -695,7 +695,7 @@ def _evaluate(args: argparse.Namespace) -> int:
             if row.get("status") in ("error", "agent_failed"):
                 bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
 
-        rows = runner.evaluate(args.data, clips, options, out, args.workers, done)
+        rows = runner.evaluate(args.data, clips, options, out, args.workers, done, registry.build)
     summary = runner.write_results(out, rows, options)
     print(runner.markdown_table(summary), end="")
     print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")

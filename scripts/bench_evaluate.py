@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_data import splits, store
+from drivee2e_data.agents import registry
 from drivee2e_data.evaluate import runner
 
 REFERENCE_CLIP_S = 20.0
@@ -31,7 +32,8 @@ def run(
     options = runner.EvaluationOptions(agent=agent, checkpoint=checkpoint)
     with tempfile.TemporaryDirectory() as folder:
         start = time.perf_counter()
-        rows = runner.evaluate(data, clips, options, Path(folder) / "run", workers)
+        rows = runner.evaluate(data, clips, options, Path(folder) / "run", workers,
+                               agent_factory=registry.build)  # fmt: skip
         return time.perf_counter() - start, rows
 
 

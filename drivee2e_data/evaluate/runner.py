@@ -104,7 +104,13 @@ _agent: Any = None
 _world: Any = None
 
 
-def _agent_for(options: EvaluationOptions) -> Any:
+# builds an agent from its name and checkpoint (the CLI hands `agents.registry.build`: agents
+# sit above this layer, so the evaluator takes the builder rather than importing it); must be
+# picklable (a module-level function) to reach pool workers
+AgentFactory = Callable[[str, Path | None], Any]
+
+
+def _agent_for(options: EvaluationOptions, agent_factory: AgentFactory | None) -> Any:
     global _agent
     if _agent is None:
         if options.agent_cmd:
@@ -112,10 +118,13 @@ def _agent_for(options: EvaluationOptions) -> Any:
 
             _agent = RemoteAgent(options.agent_cmd, step_timeout_s=options.step_timeout_s)
         else:
-            from drivee2e_data.agents.registry import build
-
+            if agent_factory is None:
+                raise DriveE2EError(
+                    f"agent {options.agent!r}: no agent factory given (pass agent_factory, "
+                    "e.g. drivee2e_data.agents.registry.build, or an agent command)"
+                )
             checkpoint = Path(options.checkpoint) if options.checkpoint else None
-            _agent = build(options.agent, checkpoint)
+            _agent = agent_factory(options.agent, checkpoint)
     return _agent
 
 
@@ -145,7 +154,11 @@ def _seed(seed: int, scenario_id: str) -> None:
 
 
 def evaluate_clip(
-    root: Path, scenario_id: str, options: EvaluationOptions, out: Path
+    root: Path,
+    scenario_id: str,
+    options: EvaluationOptions,
+    out: Path,
+    agent_factory: AgentFactory | None = None,
 ) -> dict[str, Any]:
     """Run one episode and write its row; an agent failure is a result, a broken clip is a row
     with status 'error'."""
@@ -159,7 +172,7 @@ def evaluate_clip(
             raise DriveE2EError(
                 f"clip {scenario_id} has no {options.variant} variant; curate again"
             )
-        agent = _agent_for(options)
+        agent = _agent_for(options, agent_factory)
         world = _world_for(root, scenario, options.renderer) if tuple(agent.sensors) else None
         _seed(options.seed, scenario_id)
         episode = Episode(
@@ -242,19 +255,21 @@ def evaluate(
     out: Path,
     workers: int = 1,
     on_episode: Callable[[dict[str, Any]], None] | None = None,
+    agent_factory: AgentFactory | None = None,
 ) -> list[dict[str, Any]]:
-    """Evaluate the clips without a result yet; returns every clip's row (old and new)."""
+    """Evaluate the clips without a result yet; returns every clip's row (old and new). Agents
+    by name are built by `agent_factory` (name, checkpoint); a command needs none."""
     pending = prepare_run(root, out, options, scenario_ids)
     if workers <= 1 or len(pending) <= 1:
         try:
             for scenario_id in pending:
-                row = evaluate_clip(root, scenario_id, options, out)
+                row = evaluate_clip(root, scenario_id, options, out, agent_factory)
                 if on_episode is not None:
                     on_episode(row)
         finally:
             close_process_state()
     else:
-        _run_pool(root, pending, options, out, workers, on_episode)
+        _run_pool(root, pending, options, out, workers, on_episode, agent_factory)
     return read_rows(out, scenario_ids)
 
 
@@ -279,6 +294,7 @@ def _run_pool(
     out: Path,
     workers: int,
     on_episode: Callable[[dict[str, Any]], None] | None,
+    agent_factory: AgentFactory | None,
 ) -> None:
     # longest clips first: the last worker to finish then waits least for the others
     pending = sorted(pending, key=lambda s: -_frames(root, s))
@@ -286,7 +302,7 @@ def _run_pool(
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
     try:
         futures: dict[Future, str] = {
-            pool.submit(evaluate_clip, root, s, options, out): s for s in pending
+            pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
         }
         remaining = set(futures)
         while remaining:

@@ -29,13 +29,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data import store
+from drivee2e_data.ego_limits import WHEELBASE_SHARE
 from drivee2e_data.export import common
 from drivee2e_data.export.nuscenes import clips_for
 from drivee2e_data.loaders import sample as labels
 from drivee2e_data.loaders.clip import CLASSES, ClipLabels, read_clip
 from drivee2e_data.loaders.map_labels import DEFAULT_PATCH_M, MapElements, map_elements, map_labels
 from drivee2e_data.logs.reader import LogReader
-from drivee2e_data.sensors.ego_state import WHEELBASE_SHARE
 
 HISTORY_STEPS, FUTURE_STEPS = 2, 6
 INFO_KEYS = (

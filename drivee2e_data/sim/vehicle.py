@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sensors.ego_state import (
+from drivee2e_data.ego_limits import (
     FULL_BRAKE_MPS2,
     FULL_THROTTLE_MPS2,
     MAX_STEER_RAD,
