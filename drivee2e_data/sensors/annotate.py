@@ -96,7 +96,7 @@ def visible_share(
     to_world = camera_to_world(frame.camera, ego_to_world)
     rays_world = rays @ to_world[:3, :3].T
     points_world = rays_world * depth[:, None] + to_world[:3, 3]
-    margin = DEPTH_MARGIN_M + depth_step_m(depth, NEAR_M, FAR_M)
+    margin = DEPTH_MARGIN_M + depth_resolution_m(frame, depth)
     if frame.mask is not None:
         on_body = frame.mask[rows, columns] == body
     else:
@@ -107,6 +107,19 @@ def visible_share(
         return 0.0  # nothing of the agent is drawn: not seen, whatever shows through its box
     hidden = ~on_body[through] & (depth[through] < entry[through] - margin[through])
     return float(1.0 - hidden.sum() / through.sum())
+
+
+FLOAT_DEPTH_STEP = 2.0**-22  # float32's relative step (two units in the last place), with margin
+
+
+def depth_resolution_m(frame: CameraFrame, depth_m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How finely the view's depth resolves a surface at each depth `depth_m`: float32's step
+    for the GL renderer's depth (written by the shader: micrometres at 100 m), a 16-bit depth
+    buffer's (`world.depth_step_m`: centimetres at 30 m, decimetres at 100 m) for pybullet's
+    renderers."""
+    if frame.float_depth:
+        return depth_m * FLOAT_DEPTH_STEP
+    return depth_step_m(depth_m, NEAR_M, FAR_M)
 
 
 def _entry_depth(
@@ -131,8 +144,9 @@ def _entry_depth(
     return np.where((near <= far) & ~outside.any(axis=1), np.maximum(near, 0.0), np.inf)
 
 
-# a surface point belongs to a box within this much (plus the depth buffer's step there) of its
-# sides and top, and at least ABOVE_BOTTOM_M above its bottom face (the road is not the box)
+# a surface point belongs to a box within this much (plus the depth's resolution there,
+# `depth_resolution_m`: float for the GL renderer, 16 bits for pybullet's) of its sides and
+# top, and at least ABOVE_BOTTOM_M above its bottom face (the road is not the box)
 DEPTH_MARGIN_M = 0.05
 ABOVE_BOTTOM_M = 0.02
 DEPTH_SAMPLES = 4000  # pixels per box at most for the share by depth

@@ -23,6 +23,8 @@ class CameraFrame:
     rgb: NDArray[np.uint8]  # (h, w, 3) as drawn
     depth_m: NDArray[np.float32]  # (h, w)
     mask: NDArray[np.int32] | None  # (h, w) pybullet body id per pixel, -1 where none
+    # depth as float32 from the shader (the GL renderer), not from a 16-bit depth buffer
+    float_depth: bool = False
 
     @property
     def drawn_per_camera_px(self) -> tuple[float, float]:
@@ -54,7 +56,7 @@ def render(
         near_m=NEAR_M, far_m=FAR_M, native=True,
     )  # fmt: skip
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
-    return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation)
+    return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation, world.renderer == "gl")
 
 
 def noise_seed(scenario_id: str, frame: int, camera: Camera) -> int:
