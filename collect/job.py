@@ -57,7 +57,9 @@ class CollectOptions:
 @dataclass
 class JobResult:
     scenario_id: str
-    status: str  # "collected", "skipped" (a finished log was there) or "failed"
+    # "collected", "skipped" (a finished log was there), "no ego" (nothing to mount the rig on:
+    # curate first, or the source has no motor vehicle) or "failed"
+    status: str
     frames: int = 0
     log_bytes: int = 0
     seconds: float = 0.0

@@ -70,6 +70,15 @@ def _run_lock(logs: Path) -> Iterator[None]:
         yield
 
 
+def _without_ego(root: Path, scenario_id: str) -> bool:
+    """Whether the clip's meta names no ego (a bundle that cannot be read is left to its job,
+    which reports why)."""
+    try:
+        return store.read_meta(root, scenario_id).get("ego_id") is None
+    except DriveE2EError:
+        return False
+
+
 def _planned_frames(root: Path, scenario_id: str, options: CollectOptions) -> int:
     try:
         _, frames = store.read_timeline(root, scenario_id)  # meta.json only: the job reads the rest
@@ -113,6 +122,8 @@ def collect(
             path = log_path(root, scenario_id)
             if path.exists():
                 summary.results.append(_existing(scenario_id, path))
+            elif _without_ego(root, scenario_id):
+                summary.results.append(JobResult(scenario_id, "no ego"))
             else:
                 pending.append(scenario_id)
         total = sum(_planned_frames(root, s, options) for s in pending)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -131,6 +132,10 @@ def build_parser() -> argparse.ArgumentParser:
     importer.add_argument("kind", choices=pipeline.IMPORT_KINDS, help="source format")
     importer.add_argument("source", type=Path, help="file or folder to import")
     importer.add_argument("--out", type=Path, required=True, help="data root to write into")
+    importer.add_argument(
+        "--keep-egoless", action="store_true",
+        help="also write clips with no motor vehicle (no ego can be chosen; nothing collects them)",
+    )  # fmt: skip
     _add_cut_arguments(importer)
 
     view = commands.add_parser("view", help="contact sheet of one frame: six views and a top view")
@@ -501,6 +506,11 @@ def _collect(args: argparse.Namespace) -> int:
         for bar in bars:
             bar.close()
     collected, skipped, failed = (summary.of(s) for s in ("collected", "skipped", "failed"))
+    egoless = [r.scenario_id for r in summary.of("no ego")]
+    if egoless:
+        more = f" and {len(egoless) - 10} more" if len(egoless) > 10 else ""
+        print(f"{len(egoless)} clips skipped, no ego to mount the rig on (drivee2e curate chooses "
+              f"one where a vehicle is seen throughout): {', '.join(egoless[:10])}{more}")  # fmt: skip
     print(
         f"{len(collected)} clips collected, {len(skipped)} already done, {len(failed)} failed; "
         f"{summary.frames} frames in {summary.wall_seconds:.0f} s "
@@ -584,10 +594,15 @@ def _import(args: argparse.Namespace) -> int:
             args.clip_seconds,
             on_scenario=lambda _: bar.update(1),
             cut=args.cut,
+            keep_egoless=args.keep_egoless,
         )
     print(
         f"{len(summary.scenarios)} scenarios and {len(summary.maps)} maps written under {args.out}"
     )
+    if summary.egoless:
+        everything = "no clip has an ego: all " if not summary.scenarios else ""
+        print(f"{everything}{summary.egoless} clips hold no motor vehicle (nothing an ego could "
+              "be), not written (--keep-egoless writes them)")  # fmt: skip
     for map_id, plane in summary.grounds.items():
         if plane.source != "flat":
             print(f"{map_id}: ground levelled to z = 0 from its {plane.source} (removed: "
@@ -647,7 +662,9 @@ def _curate(args: argparse.Namespace) -> int:
     ]
     _print_table(header, table)
     labelled = sum(r.behavior != "-" for r in rows)
-    print(f"{len(rows)} clips curated, {labelled} labelled")
+    reasons = Counter(r.ego_source.removeprefix("none: ") for r in rows if r.ego_id is None)
+    without = "".join(f"; {n} without an ego: {reason}" for reason, n in reasons.most_common())
+    print(f"{len(rows)} clips curated, {labelled} labelled{without}")
     return 0
 
 

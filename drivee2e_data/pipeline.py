@@ -173,9 +173,9 @@ class ImportSummary:
     report: ImportReport
     cuts: dict[str, CutReport] = dataclasses.field(default_factory=dict)  # recording -> its cut
     failures: dict[str, str] = dataclasses.field(default_factory=dict)  # source file -> error
-    grounds: dict[str, GroundPlane] = dataclasses.field(
-        default_factory=dict
-    )  # map -> plane removed
+    # map -> the ground removed from it (`sources.ground`)
+    grounds: dict[str, GroundPlane] = dataclasses.field(default_factory=dict)
+    egoless: int = 0  # clips with no motor vehicle (no ego possible), not written unless kept
 
 
 def _one(paths: list[Path], what: str, where: Path) -> Path:
@@ -330,13 +330,15 @@ def import_source(
     clip_s: float = 20.0,
     on_scenario: Callable[[str], None] | None = None,
     cut: str = "ego",
+    keep_egoless: bool = False,
 ) -> ImportSummary:
     """Import real data of `kind` from `source` into `root`, the road on the twin's ground
     (`sources.ground.level`); recordings longer than 1.5 clips are cut into clips
-    (`split_recording`)."""
+    (`split_recording`). Clips without a motor vehicle (nothing could be their ego: SinD's
+    shared samples hold pedestrians only) are counted and not written unless `keep_egoless`."""
     maps, scenarios, report, failures = _load(kind, Path(source))
     maps, scenarios, grounds = level(maps, scenarios)
-    written, cuts = [], {}
+    written, cuts, egoless = [], {}, 0
     by_id = {m.map_id: m for m in maps}
     for intersection_map in maps:
         store.write_map(root, intersection_map)
@@ -345,11 +347,20 @@ def import_source(
         if cut_report is not None:
             cuts[scenario.scenario_id] = cut_report
         for piece in pieces:
+            if not keep_egoless and not _can_have_ego(piece):
+                egoless += 1
+                continue
             store.write_scenario(root, piece)
             written.append(piece.scenario_id)
             if on_scenario is not None:
                 on_scenario(piece.scenario_id)
-    return ImportSummary([m.map_id for m in maps], written, report, cuts, failures, grounds)
+    return ImportSummary([m.map_id for m in maps], written, report, cuts, failures, grounds,
+                         egoless)  # fmt: skip
+
+
+def _can_have_ego(scenario: Scenario) -> bool:
+    """Whether a clip holds a motor vehicle (the only class an ego can be)."""
+    return any(t.agent_class.is_motor_vehicle and t.valid.any() for t in scenario.tracks)
 
 
 def synthesize_recording(
