@@ -752,6 +752,9 @@ def _scenarios(args: argparse.Namespace) -> int:
         if args.stats:
             for name, counts in stats.items():
                 print(f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+            without = pipeline.clips_without_ego(summaries)
+            print(f"clips without an ego: {sum(without.values())}"
+                  + "".join(f"; {n}: {why}" for why, n in without.most_common()))  # fmt: skip
         if args.plot:
             figures.plot_statistics(
                 stats, args.plot, title=f"{args.data.name}: {len(summaries)} clips"

@@ -476,6 +476,21 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
 STATISTIC_PANELS = ("behaviour", "agent class", "weather", "time of day")
 
 
+NO_MOTOR_VEHICLE = "no motor vehicle in the clip (nothing an ego could be)"
+NOT_CHOSEN = "none chosen (not curated yet, or no vehicle seen throughout on the map's lanes)"
+
+
+def clips_without_ego(summaries: list[ScenarioSummary]) -> Counter[str]:
+    """How many clips have no ego, by why: no motor vehicle at all, or none chosen."""
+    return Counter(
+        NO_MOTOR_VEHICLE
+        if not any(c.is_motor_vehicle and n for c, n in s.agents.items())
+        else NOT_CHOSEN
+        for s in summaries
+        if s.ego_id is None
+    )
+
+
 def statistics(summaries: list[ScenarioSummary]) -> dict[str, Counter[str]]:
     """Distributions over a dataset: clips per behaviour category, weather and time of day;
     tracks per agent class. Every known value is listed, zeros included, in a fixed order."""

@@ -43,3 +43,6 @@ def test_sind_pedestrians_only_write_no_egoless_clips_unless_asked(tmp_path: Pat
     capsys.readouterr()
     assert main(["curate", str(kept)]) == 0
     assert f"{len(clips)} without an ego: no vehicle" in capsys.readouterr().out
+    assert main(["scenarios", str(kept), "--stats"]) == 0
+    out = capsys.readouterr().out
+    assert f"clips without an ego: {len(clips)}; {len(clips)}: no motor vehicle in the clip" in out
