@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from drivee2e_data.sim.conditions import ShaderLook
-from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available, read_obj
+from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
+from drivee2e_data.sim.gl_vertices import read_obj
 from drivee2e_data.sim.world import World
 from tests.factories import egl_world, front_view, synthetic_clip
 

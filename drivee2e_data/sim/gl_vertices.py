@@ -1,0 +1,185 @@
+"""The vertices the GL renderer draws: pybullet visual shapes (the signal lamps, and any body
+without a model) read as triangles, the twin's meshes, and posed procedural models, each as rows
+of `FLOATS_PER_VERTEX` floats in world coordinates (`VERTEX_FORMAT`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
+from drivee2e_data.sim.twin import TwinMesh, box_mesh, prism_mesh, sphere_mesh
+
+CYLINDER_SIDES = 16
+# spheres are small here (signal lamps and heads, 12 cm): 80 triangles each, half the twin's
+# crowns' (42 lamps are most of what moves or changes colour)
+SPHERE_RINGS, SPHERE_SEGMENTS = 5, 10
+# position (3), normal (3), colour (3), body id + 1, emission (0..1), material (`Material`)
+FLOATS_PER_VERTEX = 12
+VERTEX_FORMAT = "3f 3f 3f 1f 1f 1f"
+VERTEX_INPUTS = ("in_position", "in_normal", "in_colour", "in_body", "in_emission", "in_material")
+POSITION_ONLY = f"3f {4 * (FLOATS_PER_VERTEX - 3)}x"  # the shadow pass reads positions alone
+
+
+@dataclass(frozen=True)
+class _Mesh:
+    """Triangles as a vertex soup in a body's frame: `(3T, 3)` positions and normals, and the
+    index of the visual shape (its colour) of each vertex."""
+
+    positions: NDArray[np.float32]
+    normals: NDArray[np.float32]
+    shape: NDArray[np.int32]
+
+
+def _flat_triangles(
+    vertices: NDArray, indices: NDArray, normals: NDArray | None = None
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """An indexed mesh as a vertex soup, with the given per-vertex normals or each triangle's."""
+    corners = np.asarray(indices, dtype=np.int64).reshape(-1)
+    positions = np.asarray(vertices, dtype=np.float64)[corners]
+    if normals is not None:
+        return positions.astype(np.float32), np.asarray(normals, np.float64)[corners].astype(
+            np.float32
+        )
+    triangles = positions.reshape(-1, 3, 3)
+    face = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    face /= np.maximum(np.linalg.norm(face, axis=1, keepdims=True), 1e-12)
+    return positions.astype(np.float32), np.repeat(face, 3, axis=0).astype(np.float32)
+
+
+def read_obj(path: Path) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The triangles of an OBJ file as written by `sim.twin` (`v`, optional `vn`, `f` with
+    1-based indices, `a` or `a//n`), as a vertex soup with normals."""
+    vertices, normals, faces = [], [], []
+    for line in path.read_text().splitlines():
+        kind, _, rest = line.partition(" ")
+        if kind == "v":
+            vertices.append(rest.split())
+        elif kind == "vn":
+            normals.append(rest.split())
+        elif kind == "f":
+            faces.append([int(token.split("/")[0]) - 1 for token in rest.split()])
+    if not faces:
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
+    vertex_array = np.asarray(vertices, dtype=np.float64)
+    normal_array = np.asarray(normals, dtype=np.float64) if normals else None
+    return _flat_triangles(vertex_array, np.asarray(faces), normal_array)
+
+
+def primitive_triangles(
+    geometry: int, dimensions: Sequence[float], mesh_file: str
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The triangles of one pybullet visual shape in its own frame (pybullet's geometry codes:
+    2 sphere (radius), 3 box (full extents), 4 cylinder (length, radius), 5 mesh (file))."""
+    if geometry == 5:
+        return read_obj(Path(mesh_file))
+    if geometry == 3:
+        return _flat_triangles(*box_mesh(np.zeros(3), 0.0, np.asarray(dimensions[:3])))
+    if geometry == 2:
+        vertices, indices, normals = sphere_mesh(
+            np.zeros(3), float(dimensions[0]), rings=SPHERE_RINGS, segments=SPHERE_SEGMENTS
+        )
+        return _flat_triangles(vertices, indices, normals)
+    if geometry == 4:
+        length, radius = float(dimensions[0]), float(dimensions[1])
+        angles = np.linspace(0.0, 2 * np.pi, CYLINDER_SIDES, endpoint=False)
+        circle = radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        return _flat_triangles(*prism_mesh(circle, -0.5 * length, 0.5 * length))
+    raise ValueError(f"pybullet visual geometry {geometry}: the GL renderer draws 2, 3, 4 and 5")
+
+
+def _rotation(quaternion: Sequence[float]) -> NDArray[np.float64]:
+    """3x3 rotation of a pybullet quaternion (x, y, z, w)."""
+    x, y, z, w = quaternion
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+class _Body:
+    """One body's visual shapes in its base frame, and each shape's colour as first read."""
+
+    def __init__(self, p, client: int, body: int) -> None:
+        self.body = body
+        # each list starts empty-shaped: a body without visual shapes is an empty mesh
+        positions, normals = [np.zeros((0, 3))], [np.zeros((0, 3))]
+        shapes = [np.zeros(0, np.int32)]
+        shape_data = p.getVisualShapeData(body, physicsClientId=client)
+        for index, data in enumerate(shape_data):
+            local_position, local_orientation = data[5], data[6]
+            triangles, triangle_normals = primitive_triangles(data[2], data[3], data[4].decode())
+            rotation = _rotation(local_orientation)
+            positions.append(triangles @ rotation.T + np.asarray(local_position))
+            normals.append(triangle_normals @ rotation.T)
+            shapes.append(np.full(len(triangles), index, np.int32))
+        self.mesh = _Mesh(
+            np.concatenate(positions).astype(np.float32),
+            np.concatenate(normals).astype(np.float32),
+            np.concatenate(shapes),
+        )
+        self.colours = _colours(shape_data)
+
+    def vertices(self, p, client: int, lamp: bool) -> NDArray[np.float32]:
+        """`(3T, FLOATS_PER_VERTEX)` the body at its pose now, in world coordinates; a `lamp`
+        has its colours read again and shines them unshaded."""
+        position, orientation = p.getBasePositionAndOrientation(self.body, physicsClientId=client)
+        if lamp:
+            self.colours = _colours(p.getVisualShapeData(self.body, physicsClientId=client))
+        rotation = _rotation(orientation)
+        out = np.empty((len(self.mesh.positions), FLOATS_PER_VERTEX), np.float32)
+        out[:, 0:3] = self.mesh.positions @ rotation.T + np.asarray(position)
+        out[:, 3:6] = self.mesh.normals @ rotation.T
+        out[:, 6:9] = self.colours[self.mesh.shape] if len(self.colours) else 0.0
+        out[:, 9] = self.body + 1
+        out[:, 10] = 1.0 if lamp else 0.0
+        out[:, 11] = float(Material.LAMP if lamp else Material.MATTE)
+        return out
+
+
+def _colours(shape_data) -> NDArray[np.float32]:
+    """`(S, 3)` RGB of each visual shape in pybullet's `getVisualShapeData` answer."""
+    return np.asarray([data[7][:3] for data in shape_data], dtype=np.float32).reshape(-1, 3)
+
+
+def static_vertices(meshes: Sequence[TwinMesh]) -> NDArray[np.float32]:
+    """`(3T, FLOATS_PER_VERTEX)` the twin's meshes as one vertex soup, in the order given."""
+    parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
+    for mesh in meshes:
+        positions, normals = _flat_triangles(mesh.vertices, mesh.indices, mesh.normals)
+        out = np.empty((len(positions), FLOATS_PER_VERTEX), np.float32)
+        out[:, 0:3], out[:, 3:6] = positions, normals
+        out[:, 6:9] = mesh.rgba[:3]
+        out[:, 9] = mesh.body + 1
+        out[:, 10] = 0.0
+        out[:, 11] = float(mesh.material)
+        parts.append(out)
+    return np.concatenate(parts)
+
+
+def model_vertices(
+    model: ModelMesh,
+    animation: Animation,
+    position: Sequence[float],
+    orientation: Sequence[float],
+    body: int,
+) -> NDArray[np.float32]:
+    """`(N, FLOATS_PER_VERTEX)` a posed model placed at a body's pose (pybullet's position and
+    quaternion), in world coordinates."""
+    local_positions, local_normals, emission = pose(model, animation)
+    rotation = _rotation(orientation).astype(np.float32)
+    out = np.empty((len(local_positions), FLOATS_PER_VERTEX), np.float32)
+    out[:, 0:3] = local_positions @ rotation.T + np.asarray(position, np.float32)
+    out[:, 3:6] = local_normals @ rotation.T
+    out[:, 6:9] = model.colours
+    out[:, 9] = body + 1
+    out[:, 10] = emission
+    out[:, 11] = model.materials
+    return out
