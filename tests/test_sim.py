@@ -254,7 +254,7 @@ def test_generated_buildings_keep_off_the_road_and_repeat():
     from factories import small_map
 
     from drivee2e_data.hdmap import StopLine
-    from drivee2e_data.sim.twin import BUILDING_SETBACK_M, generated_buildings
+    from drivee2e_data.sim.scenery import BUILDING_SETBACK_M, generated_buildings
 
     bare = small_map(stop_lines=(StopLine("s", np.array([[50.0, 1.75], [50.0, -1.75]]), ("l1",)),))
     first, second = generated_buildings(bare), generated_buildings(bare)

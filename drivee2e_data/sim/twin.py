@@ -22,9 +22,15 @@ import shapely
 import shapely.ops
 from numpy.typing import NDArray
 
-from drivee2e_data.hdmap import Building, IntersectionMap, LaneMark, MarkColour, MarkPattern
+from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.models.mesh import Material
+from drivee2e_data.sim.scenery import (
+    WearRaster,
+    generated_buildings,
+    street_lamp_sites,
+    wear_raster,
+)
 
 PAINT_Z_M = 0.005  # markings sit this far above the road
 ROAD_RGBA = (0.28, 0.28, 0.3, 1.0)
@@ -32,10 +38,8 @@ CROSSWALK_RGBA = (0.36, 0.36, 0.38, 1.0)
 SIDEWALK_RGBA = (0.62, 0.6, 0.56, 1.0)
 WHITE_RGBA = (0.92, 0.92, 0.9, 1.0)
 YELLOW_RGBA = (0.95, 0.75, 0.1, 1.0)
-BUILDING_RGBA = (0.55, 0.55, 0.62, 1.0)
 GROUND_RGBA = (0.42, 0.5, 0.32, 1.0)
 TRUNK_RGBA = (0.4, 0.28, 0.15, 1.0)
-CROWN_RGBA = (0.2, 0.5, 0.2, 1.0)
 TRUNK_SIDES = 8
 PAINT_KINDS = ("road_mark", "crosswalk", "stop_line")
 PAINT_RASTER_M = 0.05  # cell size of the paint raster (lines are 0.15 m wide)
@@ -50,26 +54,16 @@ LINE_WIDTH_M = 0.15
 STOP_LINE_WIDTH_M = 0.4
 DASH_M, GAP_M = 3.0, 6.0
 ZEBRA_STRIPE_M = 0.5
-BUILDING_SETBACK_M = 3.0  # generated buildings keep this far from road, crosswalks and sidewalks
-BUILDING_REACH_M = 90.0  # ...and stand within this distance of the junction
-BUILDING_GRID_M = 22.0  # one candidate building per grid cell
 # facades: renders, brick, concrete and stone, muted as city blocks are
 FACADE_RGBAS = ((0.72, 0.68, 0.60, 1.0), (0.60, 0.42, 0.34, 1.0), (0.58, 0.58, 0.60, 1.0),
                 (0.78, 0.74, 0.66, 1.0), (0.45, 0.47, 0.52, 1.0), (0.66, 0.56, 0.44, 1.0))  # fmt: skip
 CROWN_RGBAS = ((0.20, 0.42, 0.16, 1.0), (0.26, 0.46, 0.18, 1.0), (0.16, 0.36, 0.17, 1.0))
 CROWN_CLUSTERS = 3  # spheres per crown, each 72 triangles: the old crown's 192 in all
-STREET_LAMP_SPACING_M = 30.0
 STREET_LAMP_HEIGHT_M = 8.0
 STREET_LAMP_ARM_M = 1.6
-STREET_LAMP_REACH_M = 110.0  # lamps stand within this of the junction's centre
 POLE_RGBA = (0.32, 0.33, 0.34, 1.0)
 STREET_LAMP_RGBA = (1.0, 0.86, 0.62, 1.0)  # the lamp's face, shining at night
 MAST_ARM_OVER_ROAD_M = 1.0  # a head this far inside the road hangs from a mast arm
-WEAR_CELL_M = 0.2  # the ground-detail raster's cell (wheel tracks are 0.5 m wide)
-GROUND_DETAIL_MARGIN_M = 40.0  # the raster reaches this far beyond the road (grass near it)
-MOTTLE_SPACINGS_M = (6.0, 1.5)  # patches in asphalt and grass: two scales of value noise
-WHEEL_TRACK_OFFSET_M = 0.85  # tracks run this far either side of a lane's centre line
-WHEEL_TRACK_WIDTH_M = 0.5
 KIND_MATERIAL = {"ground": Material.GRASS, "road": Material.ASPHALT,
                  "sidewalk": Material.PAVEMENT, "road_mark": Material.MARKING,
                  "stop_line": Material.MARKING, "building": Material.FACADE}  # fmt: skip
@@ -148,18 +142,6 @@ class TwinMesh:
     vertices: NDArray[np.float64]
     indices: NDArray[np.int64]
     normals: NDArray[np.float64] | None
-
-
-@dataclass(frozen=True)
-class WearRaster:
-    """Ground detail per cell (cell (0, 0)'s corner at `origin_xy_m`, rows along y): channel
-    0 how worn the road is (the wheel tracks along the lanes), channel 1 a mottle of patches for
-    asphalt and grass; 0..255. A texel read replaces two value-noise evaluations a pixel in the
-    shader (a tenth of a camera image on llvmpipe)."""
-
-    origin_xy_m: tuple[float, float]
-    cell_m: float
-    values: NDArray[np.uint8]  # (rows, columns, 2)
 
 
 @dataclass
@@ -480,52 +462,6 @@ def sphere_mesh(
     return np.asarray(centre, dtype=np.float64) + radius_m * normals, np.asarray(indices), normals
 
 
-def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
-    """Buildings for a map that has none, placed deterministically (seeded by the map id) in the
-    free space at least `BUILDING_SETBACK_M` from road, crosswalks and sidewalks, within
-    `BUILDING_REACH_M` of the junction, each turned to the nearest lane; flagged `generated`."""
-    road = shapely.union_all(
-        [intersection_map.drivable_union(), *(shapely.Polygon(c.polygon_m) for c in intersection_map.crosswalks),
-         *(shapely.Polygon(a.polygon_m) for a in intersection_map.sidewalks)]
-    )  # fmt: skip
-    keep_out = road.buffer(BUILDING_SETBACK_M)
-    centre = junction_centre(intersection_map)
-    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
-    placed: list[shapely.Polygon] = []
-    buildings = []
-    for x in np.arange(centre[0] - BUILDING_REACH_M, centre[0] + BUILDING_REACH_M, BUILDING_GRID_M):
-        for y in np.arange(
-            centre[1] - BUILDING_REACH_M, centre[1] + BUILDING_REACH_M, BUILDING_GRID_M
-        ):
-            point = shapely.Point(x, y)
-            if keep_out.contains(point) or point.distance(shapely.Point(centre)) > BUILDING_REACH_M:
-                continue
-            heading = _heading_near(intersection_map, point)
-            length, depth = rng.uniform(10, 20), rng.uniform(8, 16)
-            corners = (
-                np.array([[-length, -depth], [length, -depth], [length, depth], [-length, depth]])
-                / 2
-            )
-            rotation = np.array(
-                [[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]]
-            )
-            footprint = shapely.Polygon(corners @ rotation.T + [x, y])
-            if footprint.intersects(keep_out) or any(footprint.intersects(p) for p in placed):
-                continue
-            placed.append(footprint)
-            buildings.append(Building(f"generated_{len(buildings):03d}", np.asarray(footprint.exterior.coords)[:-1],
-                                      float(rng.choice([6.0, 9.0, 15.0, 24.0, 40.0])), generated=True))  # fmt: skip
-    return buildings
-
-
-def _heading_near(intersection_map: IntersectionMap, point: shapely.Point) -> float:
-    nearest = min(
-        intersection_map.lanes,
-        key=lambda lane: shapely.LineString(lane.centerline_m[:, :2]).distance(point),
-    )
-    return nearest.heading_at(point.x, point.y, half_window_m=1.0)
-
-
 def paint_geometry(line: NDArray, mark: LaneMark) -> shapely.Geometry:
     """The painted area of a boundary line with mark `mark` (dashes 3 m on, 6 m off; doubles
     0.3 m apart; lines 0.15 m wide)."""
@@ -580,84 +516,6 @@ def _zebra(polygon_m: NDArray) -> shapely.Geometry:
             )
         )
     return shapely.union_all(stripes).intersection(polygon.buffer(-0.1))
-
-
-def junction_centre(intersection_map: IntersectionMap) -> NDArray[np.float64]:
-    """The junction's centre: the stop lines' mean, else the road's centroid."""
-    stops = [s.line_m[:, :2] for s in intersection_map.stop_lines]
-    if stops:
-        return np.concatenate(stops).mean(axis=0)
-    return np.asarray(intersection_map.drivable_union().centroid.coords[0])
-
-
-def street_lamp_sites(
-    intersection_map: IntersectionMap, road: shapely.Geometry
-) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
-    """(base (2,), unit vector towards the road (2,)) of each street lamp: every
-    `STREET_LAMP_SPACING_M` along the road's edge, 0.5 m onto the sidewalk (or off the road),
-    within `STREET_LAMP_REACH_M` of the junction and clear of crosswalks."""
-    centre = shapely.Point(*junction_centre(intersection_map))
-    crossings = shapely.union_all([shapely.Polygon(c.polygon_m).buffer(2.0)
-                                   for c in intersection_map.crosswalks])  # fmt: skip
-    sites = []
-    for ring in shapely.get_parts(road.boundary):
-        for distance in np.arange(0.5 * STREET_LAMP_SPACING_M, ring.length, STREET_LAMP_SPACING_M):
-            point = ring.interpolate(distance)
-            if point.distance(centre) > STREET_LAMP_REACH_M or crossings.contains(point):
-                continue
-            ahead = ring.interpolate(min(distance + 1.0, ring.length))
-            behind = ring.interpolate(max(distance - 1.0, 0.0))
-            tangent = np.array([ahead.x - behind.x, ahead.y - behind.y])
-            if np.linalg.norm(tangent) < 1e-6:
-                continue
-            tangent /= np.linalg.norm(tangent)
-            normal = np.array([-tangent[1], tangent[0]])
-            probe = shapely.Point(point.x + 0.5 * normal[0], point.y + 0.5 * normal[1])
-            towards_road = normal if road.contains(probe) else -normal
-            sites.append((np.array([point.x, point.y]) - 0.5 * towards_road, towards_road))
-    return sites
-
-
-def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
-    """The ground detail: the wheel tracks (two softened bands along every lane,
-    `WHEEL_TRACK_OFFSET_M` either side of its centre line) and a mottle of patches (value noise
-    at `MOTTLE_SPACINGS_M`, seeded by the map id), rasterised at `WEAR_CELL_M` over the road and
-    `GROUND_DETAIL_MARGIN_M` around it."""
-    import cv2
-
-    margin = GROUND_DETAIL_MARGIN_M
-    x0, y0, x1, y1 = intersection_map.drivable_union().bounds
-    origin = np.array([x0, y0]) - margin
-    shape = (
-        int(np.ceil((y1 - y0 + 2 * margin) / WEAR_CELL_M)),
-        int(np.ceil((x1 - x0 + 2 * margin) / WEAR_CELL_M)),
-    )
-    values = np.zeros(shape, np.uint8)
-    thickness = max(1, round(WHEEL_TRACK_WIDTH_M / WEAR_CELL_M))
-    for lane in intersection_map.lanes:
-        line = shapely.LineString(lane.centerline_m[:, :2])
-        if line.length < 1.0:
-            continue
-        for offset in (-WHEEL_TRACK_OFFSET_M, WHEEL_TRACK_OFFSET_M):
-            track = line.offset_curve(offset)
-            for part in getattr(track, "geoms", [track]):
-                if part.is_empty:
-                    continue
-                points = np.round((np.asarray(part.coords) - origin) / WEAR_CELL_M * 16).astype(
-                    np.int32
-                )
-                cv2.polylines(values, [points], False, 200, thickness, cv2.LINE_AA, shift=4)
-    values = cv2.GaussianBlur(values, (0, 0), 0.35 / WEAR_CELL_M)
-    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
-    mottle = np.zeros(shape, np.float32)
-    for weight, spacing in zip((0.65, 0.35), MOTTLE_SPACINGS_M, strict=True):
-        grid = rng.random((int(shape[0] * WEAR_CELL_M / spacing) + 2,
-                           int(shape[1] * WEAR_CELL_M / spacing) + 2)).astype(np.float32)  # fmt: skip
-        mottle += weight * cv2.resize(grid, shape[::-1], interpolation=cv2.INTER_CUBIC)
-    mottle = np.clip(mottle * 255, 0, 255).astype(np.uint8)
-    return WearRaster(
-        (float(origin[0]), float(origin[1])), WEAR_CELL_M, np.dstack([values, mottle])
-    )
 
 
 def build_twin(intersection_map: IntersectionMap, client: int) -> Twin:

@@ -1,0 +1,161 @@
+"""Scenery a twin adds where the map holds none: generated buildings, street-lamp sites along
+the kerbs, and the ground-detail raster (wheel tracks along the lanes, a mottle of patches).
+Pure functions of an `IntersectionMap`, deterministic (seeded by the map id)."""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from numpy.typing import NDArray
+
+from drivee2e_data.hdmap import Building, IntersectionMap
+
+BUILDING_SETBACK_M = 3.0  # generated buildings keep this far from road, crosswalks and sidewalks
+BUILDING_REACH_M = 90.0  # ...and stand within this distance of the junction
+BUILDING_GRID_M = 22.0  # one candidate building per grid cell
+STREET_LAMP_SPACING_M = 30.0
+STREET_LAMP_REACH_M = 110.0  # lamps stand within this of the junction's centre
+WEAR_CELL_M = 0.2  # the ground-detail raster's cell (wheel tracks are 0.5 m wide)
+GROUND_DETAIL_MARGIN_M = 40.0  # the raster reaches this far beyond the road (grass near it)
+MOTTLE_SPACINGS_M = (6.0, 1.5)  # patches in asphalt and grass: two scales of value noise
+WHEEL_TRACK_OFFSET_M = 0.85  # tracks run this far either side of a lane's centre line
+WHEEL_TRACK_WIDTH_M = 0.5
+
+
+@dataclass(frozen=True)
+class WearRaster:
+    """Ground detail per cell (cell (0, 0)'s corner at `origin_xy_m`, rows along y): channel
+    0 how worn the road is (the wheel tracks along the lanes), channel 1 a mottle of patches for
+    asphalt and grass; 0..255. A texel read replaces two value-noise evaluations a pixel in the
+    shader (a tenth of a camera image on llvmpipe)."""
+
+    origin_xy_m: tuple[float, float]
+    cell_m: float
+    values: NDArray[np.uint8]  # (rows, columns, 2)
+
+
+def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
+    """Buildings for a map that has none, placed deterministically (seeded by the map id) in the
+    free space at least `BUILDING_SETBACK_M` from road, crosswalks and sidewalks, within
+    `BUILDING_REACH_M` of the junction, each turned to the nearest lane; flagged `generated`."""
+    road = shapely.union_all(
+        [intersection_map.drivable_union(), *(shapely.Polygon(c.polygon_m) for c in intersection_map.crosswalks),
+         *(shapely.Polygon(a.polygon_m) for a in intersection_map.sidewalks)]
+    )  # fmt: skip
+    keep_out = road.buffer(BUILDING_SETBACK_M)
+    centre = junction_centre(intersection_map)
+    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
+    placed: list[shapely.Polygon] = []
+    buildings = []
+    for x in np.arange(centre[0] - BUILDING_REACH_M, centre[0] + BUILDING_REACH_M, BUILDING_GRID_M):
+        for y in np.arange(
+            centre[1] - BUILDING_REACH_M, centre[1] + BUILDING_REACH_M, BUILDING_GRID_M
+        ):
+            point = shapely.Point(x, y)
+            if keep_out.contains(point) or point.distance(shapely.Point(centre)) > BUILDING_REACH_M:
+                continue
+            heading = _heading_near(intersection_map, point)
+            length, depth = rng.uniform(10, 20), rng.uniform(8, 16)
+            corners = (
+                np.array([[-length, -depth], [length, -depth], [length, depth], [-length, depth]])
+                / 2
+            )
+            rotation = np.array(
+                [[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]]
+            )
+            footprint = shapely.Polygon(corners @ rotation.T + [x, y])
+            if footprint.intersects(keep_out) or any(footprint.intersects(p) for p in placed):
+                continue
+            placed.append(footprint)
+            buildings.append(Building(f"generated_{len(buildings):03d}", np.asarray(footprint.exterior.coords)[:-1],
+                                      float(rng.choice([6.0, 9.0, 15.0, 24.0, 40.0])), generated=True))  # fmt: skip
+    return buildings
+
+
+def _heading_near(intersection_map: IntersectionMap, point: shapely.Point) -> float:
+    nearest = min(
+        intersection_map.lanes,
+        key=lambda lane: shapely.LineString(lane.centerline_m[:, :2]).distance(point),
+    )
+    return nearest.heading_at(point.x, point.y, half_window_m=1.0)
+
+
+def junction_centre(intersection_map: IntersectionMap) -> NDArray[np.float64]:
+    """The junction's centre: the stop lines' mean, else the road's centroid."""
+    stops = [s.line_m[:, :2] for s in intersection_map.stop_lines]
+    if stops:
+        return np.concatenate(stops).mean(axis=0)
+    return np.asarray(intersection_map.drivable_union().centroid.coords[0])
+
+
+def street_lamp_sites(
+    intersection_map: IntersectionMap, road: shapely.Geometry
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """(base (2,), unit vector towards the road (2,)) of each street lamp: every
+    `STREET_LAMP_SPACING_M` along the road's edge, 0.5 m onto the sidewalk (or off the road),
+    within `STREET_LAMP_REACH_M` of the junction and clear of crosswalks."""
+    centre = shapely.Point(*junction_centre(intersection_map))
+    crossings = shapely.union_all([shapely.Polygon(c.polygon_m).buffer(2.0)
+                                   for c in intersection_map.crosswalks])  # fmt: skip
+    sites = []
+    for ring in shapely.get_parts(road.boundary):
+        for distance in np.arange(0.5 * STREET_LAMP_SPACING_M, ring.length, STREET_LAMP_SPACING_M):
+            point = ring.interpolate(distance)
+            if point.distance(centre) > STREET_LAMP_REACH_M or crossings.contains(point):
+                continue
+            ahead = ring.interpolate(min(distance + 1.0, ring.length))
+            behind = ring.interpolate(max(distance - 1.0, 0.0))
+            tangent = np.array([ahead.x - behind.x, ahead.y - behind.y])
+            if np.linalg.norm(tangent) < 1e-6:
+                continue
+            tangent /= np.linalg.norm(tangent)
+            normal = np.array([-tangent[1], tangent[0]])
+            probe = shapely.Point(point.x + 0.5 * normal[0], point.y + 0.5 * normal[1])
+            towards_road = normal if road.contains(probe) else -normal
+            sites.append((np.array([point.x, point.y]) - 0.5 * towards_road, towards_road))
+    return sites
+
+
+def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
+    """The ground detail: the wheel tracks (two softened bands along every lane,
+    `WHEEL_TRACK_OFFSET_M` either side of its centre line) and a mottle of patches (value noise
+    at `MOTTLE_SPACINGS_M`, seeded by the map id), rasterised at `WEAR_CELL_M` over the road and
+    `GROUND_DETAIL_MARGIN_M` around it."""
+    import cv2
+
+    margin = GROUND_DETAIL_MARGIN_M
+    x0, y0, x1, y1 = intersection_map.drivable_union().bounds
+    origin = np.array([x0, y0]) - margin
+    shape = (
+        int(np.ceil((y1 - y0 + 2 * margin) / WEAR_CELL_M)),
+        int(np.ceil((x1 - x0 + 2 * margin) / WEAR_CELL_M)),
+    )
+    values = np.zeros(shape, np.uint8)
+    thickness = max(1, round(WHEEL_TRACK_WIDTH_M / WEAR_CELL_M))
+    for lane in intersection_map.lanes:
+        line = shapely.LineString(lane.centerline_m[:, :2])
+        if line.length < 1.0:
+            continue
+        for offset in (-WHEEL_TRACK_OFFSET_M, WHEEL_TRACK_OFFSET_M):
+            track = line.offset_curve(offset)
+            for part in getattr(track, "geoms", [track]):
+                if part.is_empty:
+                    continue
+                points = np.round((np.asarray(part.coords) - origin) / WEAR_CELL_M * 16).astype(
+                    np.int32
+                )
+                cv2.polylines(values, [points], False, 200, thickness, cv2.LINE_AA, shift=4)
+    values = cv2.GaussianBlur(values, (0, 0), 0.35 / WEAR_CELL_M)
+    rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
+    mottle = np.zeros(shape, np.float32)
+    for weight, spacing in zip((0.65, 0.35), MOTTLE_SPACINGS_M, strict=True):
+        grid = rng.random((int(shape[0] * WEAR_CELL_M / spacing) + 2,
+                           int(shape[1] * WEAR_CELL_M / spacing) + 2)).astype(np.float32)  # fmt: skip
+        mottle += weight * cv2.resize(grid, shape[::-1], interpolation=cv2.INTER_CUBIC)
+    mottle = np.clip(mottle * 255, 0, 255).astype(np.uint8)
+    return WearRaster(
+        (float(origin[0]), float(origin[1])), WEAR_CELL_M, np.dstack([values, mottle])
+    )
