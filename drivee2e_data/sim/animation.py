@@ -12,16 +12,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.scenario import AgentClass, Track
+from drivee2e_data.ego_limits import WHEELBASE_SHARE
+from drivee2e_data.scenario import FRAME_PERIOD_NS, Track
 from drivee2e_data.sim.models import Animation, ModelMesh
 
-DT_S = 0.1
+DT_S = FRAME_PERIOD_NS / 1e9
 BRAKE_DECELERATION_MPS2 = 0.6  # brake lights show above this deceleration (coasting is ~0.3)
 STOPPED_MPS = 0.3  # a vehicle that moved in the clip and stands now holds its brake
 WALKING_MPS = 0.9  # full swing from this speed; a still pedestrian stands
 SMOOTHING_FRAMES = 5  # speed and yaw rate are averaged over half a second (the logs are noisy)
-WHEELBASE_SHARE = 0.6  # a vehicle's wheelbase as a share of its length
-MOTOR_VEHICLES = (AgentClass.CAR, AgentClass.VAN, AgentClass.TRUCK, AgentClass.BUS)
 
 
 @dataclass(frozen=True)

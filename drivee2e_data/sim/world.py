@@ -29,7 +29,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, Scenario, SignalState
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
-from drivee2e_data.sim.animation import MOTOR_VEHICLES, TrackMotion, animation_at, track_motion
+from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
 from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available, gl_renderer_name
 from drivee2e_data.sim.models import LOOK_VERSION, Animation, ModelMesh, agent_model
@@ -236,7 +236,7 @@ class World:
             model = self.models[track.track_id]
             walks = track.agent_class == AgentClass.PEDESTRIAN
             motor = (
-                track.agent_class in MOTOR_VEHICLES or track.agent_class == AgentClass.MOTORCYCLIST
+                track.agent_class.is_motor_vehicle or track.agent_class == AgentClass.MOTORCYCLIST
             )
             animation = animation_at(
                 self.motions[track.track_id], frame, model, headlights and motor, walks

@@ -193,8 +193,8 @@ def wheels(builder: MeshBuilder, axles_x: list[float], radius: float, size: NDAr
 
 
 def lamps_and_bumpers(builder: MeshBuilder, size: NDArray, z_bottom: float, lamp_z: float,
-                      tail_z: float, paint: tuple) -> None:  # fmt: skip
-    """Headlights, tail lights, bumpers and a grille at the box's ends; mirrors at its sides."""
+                      tail_z: float) -> None:  # fmt: skip
+    """Headlights, tail lights, bumpers and a grille at the box's ends."""
     length, width, height = size
     front, back = 0.5 * length, -0.5 * length
     depth = BODY_END * length + 0.02
@@ -233,7 +233,7 @@ def car_like(style: BodyStyle, size: NDArray, paint: tuple) -> ModelMesh:
     hull(builder, style, x0, x1, size, paint, z_bottom)
     radius = style.wheel_radius * height
     wheels(builder, [-0.5 * length + a * length for a in style.axles], radius, size, z_bottom)
-    lamps_and_bumpers(builder, size, z_bottom, style.lamp_z, style.tail_z, paint)
+    lamps_and_bumpers(builder, size, z_bottom, style.lamp_z, style.tail_z)
     front_glass = max(s[0] for s in style.sections if s[3] > s[2] + 0.05)  # the A pillar
     mirrors(builder, x0 + (front_glass - 0.02) * (x1 - x0),
             z_bottom + style.sections[-1][2] * height + 0.12 * height, size, paint)  # fmt: skip
@@ -265,7 +265,7 @@ def truck(size: NDArray, paint: tuple, cargo: tuple, tractor: bool) -> ModelMesh
     if tractor:
         axles.append(cab_x0 - 0.1)
     wheels(builder, axles, radius, size, z_bottom)
-    lamps_and_bumpers(builder, size, z_bottom, 0.18, 0.22, paint)
+    lamps_and_bumpers(builder, size, z_bottom, 0.18, 0.22)
     mirrors(builder, cab_x0 + 0.85 * cab_length, z_bottom + 0.55 * height, size, paint)
     return builder.build(wheel_radius_m=radius)
 
@@ -299,7 +299,7 @@ def bus(size: NDArray, paint: tuple, articulated: bool) -> ModelMesh:
     if articulated:
         axles.insert(1, x0 + 0.58 * (x1 - x0))
     wheels(builder, axles, radius, size, z_bottom)
-    lamps_and_bumpers(builder, size, z_bottom, BUS.lamp_z, BUS.tail_z, paint)
+    lamps_and_bumpers(builder, size, z_bottom, BUS.lamp_z, BUS.tail_z)
     mirrors(builder, x1 - 0.3, z_bottom + 0.75 * height, size, palette.TRIM_RGB)
     return builder.build(wheel_radius_m=radius)
 
