@@ -8,6 +8,7 @@ and sensor noise for the GL renderer. Deterministic: noise and streaks come from
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -262,10 +263,8 @@ class ShaderLook:
 
     def plain(self) -> ShaderLook:
         """The same sun without weather or night: the top view's look (a map to read)."""
-        from dataclasses import replace
-
         day_sun = tuple(float(v) for v in np.maximum(self.sun_rgb, 0.45))
-        return replace(self, fog_density=0.0, wetness=0.0, lamps_on=False, headlights=False,
+        return dataclasses.replace(self, fog_density=0.0, wetness=0.0, lamps_on=False, headlights=False,
                        sky_ambient=(0.6, 0.6, 0.62), ground_ambient=(0.45, 0.45, 0.45),
                        sun_rgb=day_sun)  # fmt: skip
 

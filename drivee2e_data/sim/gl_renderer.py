@@ -23,7 +23,7 @@ import functools
 import logging
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -172,8 +172,9 @@ def shadow_matrix(light_direction: Sequence[float], centre_xy: Sequence[float]) 
 
 @dataclass(frozen=True)
 class SceneLights:
-    """What lights the scene at one state besides the sun: street lamps near the focus and the
-    vehicles' headlights (position and unit direction, world frame)."""
+    """What the scene's light follows at one state besides the look: the focus the sun's shadow
+    map centres on (the ego) and the vehicles' headlights, nearest first (position and unit
+    direction, world frame)."""
 
     focus_xy_m: tuple[float, float] = (0.0, 0.0)
     headlights: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
@@ -285,9 +286,8 @@ class GLRenderer:
             "zenith_rgb": look.zenith_rgb, "horizon_rgb": look.horizon_rgb,
             "cloud_cover": look.cloud_cover, "cloud_rgb": look.cloud_rgb, "sun_disc": look.sun_disc,
             "sky_ambient": look.sky_ambient, "ground_ambient": look.ground_ambient,
-            "shadows": float(look.shadows), "fog_rgb": look.fog_rgb,
-            "fog_density": look.fog_density, "wetness": look.wetness,
-            "lamps_on": float(look.lamps_on), "lamp_rgb": look.lamp_rgb, "spot_rgb": look.spot_rgb,
+            "fog_rgb": look.fog_rgb, "fog_density": look.fog_density, "wetness": look.wetness,
+            "lamp_rgb": look.lamp_rgb, "spot_rgb": look.spot_rgb,
             "spot_reach_m": look.spot_reach_m, "far_m": far_m,
             "camera_position": tuple(float(v) for v in camera_position),
         }  # fmt: skip
@@ -472,10 +472,10 @@ class GLRenderer:
                 self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
                 self._draw_geometry("labels")
             else:
-                variant = scene_variant(replace(shader_look, shadows=shadows))
+                # shadows, night, wet and fog are compiled in: the variant the look needs
+                variant = scene_variant(shader_look)
                 program = self._scene_program(variant)
                 self._apply_look(program, shader_look, camera_position, far_m)
-                _set(program, "shadows", float(shadows))
                 rotation_only = view_matrix.copy()
                 rotation_only[:3, 3] = 0.0
                 inverse = np.linalg.inv(projection_matrix @ rotation_only)

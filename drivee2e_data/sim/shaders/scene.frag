@@ -1,12 +1,11 @@
 // The scene pass (common.glsl is prepended): materials, sun and shadow, sky light, street
 // lamps and headlights, wet surfaces and fog; writes colour, body id and depth in one pass.
-// Uniforms: sky_ambient, ground_ambient (light from above and below), shadow_map, shadows
-// (0 or 1), fog_rgb, fog_density (per metre), wetness (0..1), camera_position, lamp_map,
+// Uniforms: sky_ambient, ground_ambient (light from above and below), shadow_map, fog_rgb,
+// fog_density (per metre), wetness (0..1), camera_position, lamp_map,
 // lamp_origin, lamp_extent (the street lamps' light on level ground, a raster: world corner
 // and size in metres), lamp_rgb, spot_count, spot_positions[MAX_SPOTS],
-// spot_directions[MAX_SPOTS], spot_rgb, spot_reach_m, lamps_on (0 or 1: street lamps and
-// lit windows), wear_map, wear_origin, wear_extent (the road-wear raster: world corner, size
-// in metres).
+// spot_directions[MAX_SPOTS], spot_rgb, spot_reach_m, wear_map, wear_origin, wear_extent
+// (the road-wear raster: world corner, size in metres).
 // Compiled in variants (the renderer prepends the defines that a clip's look needs: features
 // a clip does not use cost nothing, where a uniform switch still cost a third of an image on
 // llvmpipe): SHADOWS (the sun's shadow map), NIGHT (street lamps, headlights, lit windows),
@@ -29,7 +28,6 @@
 uniform vec3 sky_ambient;
 uniform vec3 ground_ambient;
 uniform sampler2DShadow shadow_map;
-uniform float shadows;
 uniform vec3 fog_rgb;
 uniform float fog_density;
 uniform float wetness;
@@ -43,7 +41,6 @@ uniform vec3 spot_positions[MAX_SPOTS];
 uniform vec3 spot_directions[MAX_SPOTS];
 uniform vec3 spot_rgb;
 uniform float spot_reach_m;
-uniform float lamps_on;
 uniform sampler2D wear_map;
 uniform vec2 wear_origin;
 uniform vec2 wear_extent;
@@ -63,7 +60,6 @@ float sunlit() {
 #ifndef SHADOWS
     return 1.0;
 #else
-    if (shadows < 0.5) return 1.0;
     vec3 p = shadow_position.xyz / shadow_position.w * 0.5 + 0.5;
     if (any(lessThan(p.xy, vec2(0.0))) || any(greaterThan(p.xy, vec2(1.0)))) return 1.0;
     // one tap of the hardware's 2x2 comparison filter (four taps cost 7% of an image here)
@@ -117,7 +113,7 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
             // some windows lit at night, by a hash of the window
             float chance = hash(cell + floor(world_position.xy / 50.0));
 #ifdef NIGHT
-            glow = lamps_on * step(0.75, chance);
+            glow = step(0.75, chance);
 #endif
             vec3 warm = vec3(0.95, 0.78, 0.45) * (0.55 + 1.8 * (chance - 0.75));
             return mix(vec3(0.12, 0.14, 0.17), warm, glow);
@@ -162,7 +158,7 @@ void main() {
         }
     }
 #ifdef NIGHT
-    if (lamps_on > 0.5) {  // street lamps: their light on level ground, read from a raster
+    {  // street lamps: their light on level ground, read from a raster
         float level = texture(lamp_map, (world_position.xy - lamp_origin) / lamp_extent).r;
         float facing = LAMP_WALL_SHARE + (1.0 - LAMP_WALL_SHARE) * max(n.z, 0.0);
         float low = clamp(1.0 - world_position.z / 12.0, 0.2, 1.0);  // they shine down
@@ -186,7 +182,9 @@ void main() {
     }
 #endif
     float shining = emission;
-    if (material == STREET_LAMP) shining = lamps_on;
+#ifdef NIGHT
+    if (material == STREET_LAMP) shining = 1.0;  // by day their faces have no emission
+#endif
     lit = mix(lit, colour, clamp(shining, 0.0, 1.0));  // lamps shine their own colour
     lit = mix(lit, base, glow);
 #ifdef FOG
