@@ -95,11 +95,11 @@ def visible_share(
     )
     to_world = camera_to_world(frame.camera, ego_to_world)
     rays_world = rays @ to_world[:3, :3].T
-    points_world = rays_world * depth[:, None] + to_world[:3, 3]
     margin = DEPTH_MARGIN_M + depth_resolution_m(frame, depth)
     if frame.mask is not None:
         on_body = frame.mask[rows, columns] == body
     else:
+        points_world = rays_world * depth[:, None] + to_world[:3, 3]
         on_body = _inside_box(points_world, corners_world, margin)
     entry = _entry_depth(to_world[:3, 3], rays_world, corners_world)
     through = np.isfinite(entry)  # a pixel on the outline's edge may pass beside the box
@@ -127,11 +127,7 @@ def _entry_depth(
 ) -> NDArray[np.float64]:
     """(N,) the depth (camera z, as `rays` (N, 3) are scaled: z = 1) at which each ray from
     `origin` enters the box (slab test); inf for rays that miss it."""
-    box_origin = corners_world[2]
-    axes = np.stack([corners_world[1] - box_origin, corners_world[3] - box_origin,
-                     corners_world[6] - box_origin])  # fmt: skip
-    lengths = np.linalg.norm(axes, axis=1)
-    units = axes / lengths[:, None]
+    box_origin, units, lengths = _box_frame(corners_world)
     start = units @ (origin - box_origin)  # (3,) the camera in the box's frame
     along = rays @ units.T  # (N, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -175,6 +171,27 @@ def _covered_pixels(
     return rows + y0, columns + x0
 
 
+def _box_frame(
+    corners_world: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A box (corners bottom face first) as its corner at (-l/2, -w/2, bottom) `(3,)`, its unit
+    axes along length, width and height `(3, 3)` and its size along them `(3,)`."""
+    origin = corners_world[2]
+    axes = np.stack(
+        [corners_world[1] - origin, corners_world[3] - origin, corners_world[6] - origin]
+    )
+    lengths = np.linalg.norm(axes, axis=1)
+    return origin, axes / lengths[:, None], lengths
+
+
+def _box_metres(
+    points_world: NDArray[np.float64], corners_world: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Points `(N, 3)` in metres along the box's axes from its corner, and the box's size."""
+    origin, units, lengths = _box_frame(corners_world)
+    return (points_world - origin) @ units.T, lengths
+
+
 def _inside_box(
     points_world: NDArray[np.float64],
     corners_world: NDArray[np.float64],
@@ -182,16 +199,7 @@ def _inside_box(
 ) -> NDArray[np.bool_]:
     """Which points `(N, 3)` lie in the box (corners bottom face first), each within its
     `margin_m` `(N,)` out from the sides and top, and `ABOVE_BOTTOM_M` in from the bottom."""
-    origin = corners_world[2]
-    axes = np.stack(
-        [
-            corners_world[1] - corners_world[2],
-            corners_world[3] - corners_world[2],
-            corners_world[6] - corners_world[2],
-        ]
-    )
-    lengths = np.linalg.norm(axes, axis=1)
-    metres = (points_world - origin) @ (axes / lengths[:, None]).T
+    metres, lengths = _box_metres(points_world, corners_world)
     margin = margin_m[:, None]
     low = np.column_stack([-margin_m, -margin_m, np.full(len(margin_m), ABOVE_BOTTOM_M)])
     return np.all((metres >= low) & (metres <= lengths + margin), axis=1)
@@ -204,16 +212,10 @@ def visibility_level(share: float) -> int:
     return 1 + int(np.searchsorted(VISIBILITY_BINS, share, side="right"))
 
 
-def points_in_box(points_world: NDArray[np.float64], corners_world: NDArray[np.float64]) -> int:
-    """How many points `(N, 3)` lie inside the box with these 8 corners (bottom face first)."""
-    origin = corners_world[2]  # (-l/2, -w/2, bottom)
-    axes = np.stack(
-        [
-            corners_world[1] - corners_world[2],
-            corners_world[3] - corners_world[2],
-            corners_world[6] - corners_world[2],
-        ]
-    )
-    relative = points_world - origin
-    coordinates = relative @ axes.T / np.sum(axes * axes, axis=1)
-    return int(np.all((coordinates >= 0) & (coordinates <= 1), axis=1).sum())
+def points_in_box(
+    points_world: NDArray[np.float64], corners_world: NDArray[np.float64], margin_m: float = 0.0
+) -> int:
+    """How many points `(N, 3)` lie inside the box with these 8 corners (bottom face first),
+    grown by `margin_m` on every face."""
+    metres, lengths = _box_metres(points_world, corners_world)
+    return int(np.all((metres >= -margin_m) & (metres <= lengths + margin_m), axis=1).sum())

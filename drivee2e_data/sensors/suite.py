@@ -307,11 +307,7 @@ def _points_in_box(
         return 0
     points = sweep.points_m[indices].astype(np.float64) @ lidar_to_world[:3, :3].T
     points += lidar_to_world[:3, 3]
-    centre = corners.mean(axis=0)
-    grown = centre + (corners - centre) * (
-        1.0 + 2 * BOX_POINT_MARGIN_M / np.ptp(corners, axis=0).clip(1e-6)
-    )
-    return annotate.points_in_box(points, grown)
+    return annotate.points_in_box(points, corners, BOX_POINT_MARGIN_M)
 
 
 def configured_rig(options: SuiteOptions) -> Rig:
