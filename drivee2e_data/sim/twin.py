@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
-from drivee2e_data.sim.models.mesh import Material
+from drivee2e_data.sim.models.mesh import Material, box_mesh
 from drivee2e_data.sim.scenery import (
     WearRaster,
     generated_buildings,
@@ -415,23 +415,6 @@ def prism_mesh(
     roof, roof_indices = triangulate(shapely.Polygon(ring))
     vertices = np.concatenate([walls, np.column_stack([roof, np.full(len(roof), top_m)])])
     return vertices, np.concatenate([wall_indices, roof_indices + len(walls)])
-
-
-def box_mesh(
-    centre: NDArray, yaw_rad: float, size_m: NDArray
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """The 8 corners and 12 outward triangles of a box of `size_m` (length, width, height)
-    centred at `centre` (x, y, z), turned `yaw_rad` about z."""
-    # corner k sits at +x when bit 0 is set, +y for bit 1, +z for bit 2
-    signs = np.array(
-        [[(k & 1) * 2 - 1, (k >> 1 & 1) * 2 - 1, (k >> 2 & 1) * 2 - 1] for k in range(8)]
-    )
-    local = 0.5 * signs * np.asarray(size_m, dtype=np.float64)
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    faces = [0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 1, 3, 7, 1, 7, 5,
-             0, 4, 6, 0, 6, 2, 2, 6, 7, 2, 7, 3, 0, 1, 5, 0, 5, 4]  # fmt: skip
-    return local @ rotation.T + np.asarray(centre, dtype=np.float64), np.asarray(faces)
 
 
 def sphere_mesh(

@@ -184,17 +184,29 @@ def quads(a: NDArray, b: NDArray, c: NDArray, d: NDArray) -> NDArray[np.float64]
     return np.stack([first, second], axis=1).reshape(-1, 3, 3)
 
 
+def box_mesh(
+    centre: NDArray, yaw_rad: float, size_m: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The 8 corners and 12 outward triangles of a box of `size_m` (length, width, height)
+    centred at `centre` (x, y, z), turned `yaw_rad` about z."""
+    # corner k sits at +x when bit 0 is set, +y for bit 1, +z for bit 2
+    signs = np.array(
+        [[(k & 1) * 2 - 1, (k >> 1 & 1) * 2 - 1, (k >> 2 & 1) * 2 - 1] for k in range(8)]
+    )
+    local = 0.5 * signs * np.asarray(size_m, dtype=np.float64)
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    faces = [0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 1, 3, 7, 1, 7, 5,
+             0, 4, 6, 0, 6, 2, 2, 6, 7, 2, 7, 3, 0, 1, 5, 0, 5, 4]  # fmt: skip
+    return local @ rotation.T + np.asarray(centre, dtype=np.float64), np.asarray(faces)
+
+
 def box(
     centre: tuple[float, float, float] | NDArray, size: tuple[float, float, float] | NDArray
 ) -> NDArray[np.float64]:
-    """Triangles `(12, 3, 3)` of an axis-aligned box."""
-    c = np.asarray(centre, dtype=np.float64)
-    h = 0.5 * np.asarray(size, dtype=np.float64)
-    corner = np.array([[(k & 1) * 2 - 1, (k >> 1 & 1) * 2 - 1, (k >> 2 & 1) * 2 - 1]
-                       for k in range(8)]) * h + c  # fmt: skip
-    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (1, 3, 7, 5), (0, 4, 6, 2), (2, 6, 7, 3), (0, 1, 5, 4)]
-    corners = corner[np.asarray(faces)]
-    return quads(corners[:, 0], corners[:, 1], corners[:, 2], corners[:, 3])
+    """Triangles `(12, 3, 3)` of an axis-aligned box (`box_mesh`'s, as a soup)."""
+    vertices, indices = box_mesh(np.asarray(centre, dtype=np.float64), 0.0, size)
+    return vertices[indices].reshape(-1, 3, 3)
 
 
 def _rings3(sections_x: NDArray[np.float64], rings: NDArray[np.float64]) -> NDArray[np.float64]:
