@@ -35,11 +35,12 @@ from drivee2e_data.sim.gl_vertices import (
     POSITION_ONLY,
     VERTEX_FORMAT,
     VERTEX_INPUTS,
+    Posed,
     _Body,
     model_vertices,
     static_vertices,
 )
-from drivee2e_data.sim.models import Animation, ModelMesh
+from drivee2e_data.sim.models import Animation, ModelMesh, pose
 from drivee2e_data.sim.twin import TwinMesh, WearRaster
 
 LOG = logging.getLogger(__name__)
@@ -236,6 +237,9 @@ class GLRenderer:
         self.dynamic_count = 0
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
+        # each model's last pose and the animation it was posed for: a frame syncs twice (the
+        # cameras without the ego, the top view with it) and stationary actors keep their pose
+        self.posed: dict[int, tuple[Animation, Posed]] = {}
         self.synced: object = None
         self.shadowed: object = None
         self.lights = SceneLights()
@@ -331,11 +335,13 @@ class GLRenderer:
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
         self.models = dict(models)
+        self.posed = {}
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
         (pybullet reuses the ids of removed bodies)."""
         self.bodies = {}
+        self.posed = {}
         self.synced = None
 
     def sync(
@@ -361,8 +367,14 @@ class GLRenderer:
                 )
                 if position[2] < HIDDEN_BELOW_M:
                     continue
-                parts.append(model_vertices(self.models[body], animations.get(body, Animation()),
-                                            position, orientation, body))  # fmt: skip
+                animation = animations.get(body, Animation())
+                cached = self.posed.get(body)
+                if cached is None or cached[0] != animation:
+                    cached = (animation, pose(self.models[body], animation))
+                    self.posed[body] = cached
+                parts.append(
+                    model_vertices(self.models[body], cached[1], position, orientation, body)
+                )
             else:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)

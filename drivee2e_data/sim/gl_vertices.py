@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
+from drivee2e_data.sim.models import Material, ModelMesh
 from drivee2e_data.sim.twin import TwinMesh, box_mesh, prism_mesh, sphere_mesh
 
 CYLINDER_SIDES = 16
@@ -164,16 +164,20 @@ def static_vertices(meshes: Sequence[TwinMesh]) -> NDArray[np.float32]:
     return np.concatenate(parts)
 
 
+Posed = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
+
+
 def model_vertices(
     model: ModelMesh,
-    animation: Animation,
+    posed: Posed,
     position: Sequence[float],
     orientation: Sequence[float],
     body: int,
 ) -> NDArray[np.float32]:
-    """`(N, FLOATS_PER_VERTEX)` a posed model placed at a body's pose (pybullet's position and
-    quaternion), in world coordinates."""
-    local_positions, local_normals, emission = pose(model, animation)
+    """`(N, FLOATS_PER_VERTEX)` a model posed by `models.pose` (positions, normals and
+    emissions in its frame) placed at a body's pose (pybullet's position and quaternion), in
+    world coordinates."""
+    local_positions, local_normals, emission = posed
     rotation = _rotation(orientation).astype(np.float32)
     out = np.empty((len(local_positions), FLOATS_PER_VERTEX), np.float32)
     out[:, 0:3] = local_positions @ rotation.T + np.asarray(position, np.float32)
