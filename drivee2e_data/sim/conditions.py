@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -348,3 +349,55 @@ def lamp_raster(
             np.float32
         )
     return LampRaster((float(origin[0]), float(origin[1])), LAMP_RASTER_M, values)
+
+
+HEADLIGHT_GAIN = 3.0  # a headlight's light on the road near it, against the lamps' 1.25
+HEADLIGHT_CONE_COS = (0.82, 0.95)  # the beam: full inside 18 degrees, none beyond 35
+
+
+def headlight_raster(
+    spots: Sequence[tuple[Sequence[float], Sequence[float]]],
+    like: LampRaster,
+    reach_m: float = HEADLIGHT_REACH_M,
+) -> NDArray[np.float32]:
+    """Light on level ground (z = 0) from headlights, on the cells of `like` (the lamps'
+    raster), in units of the headlight colour's intensity. `spots`: (position, unit direction)
+    of each, world frame. A beam lights a cell by the cone of its direction (a smoothstep
+    between `HEADLIGHT_CONE_COS`), a falloff (1 - distance / `reach_m`)^2, and a wrapped cosine
+    of the light's angle to the ground (beams are shaped to throw far along the road: the road,
+    met at a grazing angle, is lit more than a cosine law from one point would give). Remade at
+    every state, only over each beam's sector; the raster's edge cells stay dark (the texture
+    clamps to them)."""
+    rows, columns = like.values.shape
+    values = np.zeros((rows, columns), np.float32)
+    x0, y0 = like.origin_xy_m
+    cell = like.cell_m
+    half_angle = math.acos(HEADLIGHT_CONE_COS[0])
+    low, high = HEADLIGHT_CONE_COS
+    for position, direction in spots:
+        px, py, pz = (float(v) for v in position)
+        dx, dy, dz = (float(v) for v in direction)
+        heading = math.atan2(dy, dx)
+        # the beam's sector on the ground: the lamp and its reach at the heading and both edges
+        ends = [(px, py)] + [
+            (px + reach_m * math.cos(heading + a), py + reach_m * math.sin(heading + a))
+            for a in (-half_angle, -0.5 * half_angle, 0.0, 0.5 * half_angle, half_angle)
+        ]
+        xs, ys = zip(*ends, strict=False)
+        c0 = max(int((min(xs) - x0) / cell), 1)
+        c1 = min(math.ceil((max(xs) - x0) / cell), columns - 1)
+        r0 = max(int((min(ys) - y0) / cell), 1)
+        r1 = min(math.ceil((max(ys) - y0) / cell), rows - 1)
+        if c0 >= c1 or r0 >= r1:
+            continue
+        gx = (px - (x0 + (np.arange(c0, c1) + 0.5) * cell))[None, :]  # cell to lamp
+        gy = (py - (y0 + (np.arange(r0, r1) + 0.5) * cell))[:, None]
+        squared = gx * gx + gy * gy + pz * pz
+        distance = np.sqrt(squared)
+        aim = -(gx * dx + gy * dy + pz * dz) / distance  # cosine off the beam
+        t = np.clip((aim - low) / (high - low), 0.0, 1.0)
+        cone = t * t * (3.0 - 2.0 * t)
+        reach = np.clip(1.0 - distance / reach_m, 0.0, 1.0)
+        facing = np.clip((pz / distance + 0.6) / 1.6, 0.0, 1.0)
+        values[r0:r1, c0:c1] += (HEADLIGHT_GAIN * cone * reach * reach * facing).astype(np.float32)
+    return values

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim.conditions import LampRaster, ShaderLook, lamp_raster
+from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -40,7 +40,7 @@ from drivee2e_data.sim.gl_vertices import (
     model_vertices,
     static_vertices,
 )
-from drivee2e_data.sim.models import Animation, ModelMesh, pose
+from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
 from drivee2e_data.sim.twin import TwinMesh, WearRaster
 
 LOG = logging.getLogger(__name__)
@@ -52,8 +52,28 @@ LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's dayli
 SHADOW_MAP_PX = 2048
 SHADOW_HALF_WIDTH_M = 75.0
 SHADOW_DEPTH_M = 600.0
-MAX_SPOTS = 6  # the shader's headlight array (scene.frag's MAX_SPOTS)
+MAX_SPOTS = 6  # the nearest vehicles' headlights light the scene (`SceneLights`)
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
+# The scene is drawn one group of materials at a time, each with the scene shader compiled for
+# those materials alone (`scene.frag`'s HAS_* and GLOSSY defines): llvmpipe, the CPU's GL, runs
+# every branch of a shader for every pixel (its "if" masks lanes, it does not jump), so a
+# shader holding every material's code costs the sum of them all on every pixel. Each group:
+# its materials (`Material` codes) and its defines; ground materials turn glossy when wet.
+MATERIAL_GROUPS: tuple[tuple[frozenset[int], tuple[str, ...]], ...] = (
+    (frozenset({Material.PAINT, Material.GLASS, Material.TYRE}), ("GLOSSY",)),
+    (frozenset({Material.MATTE, Material.LAMP, Material.STREET_LAMP}), ()),
+    (frozenset({Material.ASPHALT}), ("HAS_ASPHALT",)),
+    (frozenset({Material.MARKING}), ("HAS_MARKING",)),
+    (frozenset({Material.PAVEMENT}), ("HAS_PAVEMENT",)),
+    (frozenset({Material.GRASS}), ("HAS_GRASS",)),
+    (frozenset({Material.FOLIAGE}), ("HAS_FOLIAGE",)),
+    (frozenset({Material.FACADE}), ("HAS_FACADE", "GLOSSY")),
+)
+GROUND_MATERIALS = frozenset(
+    {Material.ASPHALT, Material.MARKING, Material.PAVEMENT, Material.GRASS}
+)
+ALL_MATERIALS = ("HAS_ASPHALT", "HAS_MARKING", "HAS_PAVEMENT", "HAS_GRASS", "HAS_FOLIAGE",
+                 "HAS_FACADE", "GLOSSY")  # fmt: skip
 
 
 def shader_source(name: str, defines: Sequence[str] = ()) -> str:
@@ -64,6 +84,46 @@ def shader_source(name: str, defines: Sequence[str] = ()) -> str:
         header = "#version 330\n" + "".join(f"#define {define}\n" for define in defines)
         return header + (SHADER_DIR / "common.glsl").read_text() + text
     return text
+
+
+def group_defines(group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
+    """The scene shader's defines for drawing material group `group` (an index into
+    `MATERIAL_GROUPS`; past its end: materials outside every group, all the code) in `variant`."""
+    if group >= len(MATERIAL_GROUPS):
+        return variant + ALL_MATERIALS
+    materials, defines = MATERIAL_GROUPS[group]
+    if "WET" in variant and materials <= GROUND_MATERIALS:
+        defines = (*defines, "GLOSSY")
+    return variant + defines
+
+
+_GROUP_OF = np.full(256, len(MATERIAL_GROUPS), np.int64)
+for _index, (_materials, _) in enumerate(MATERIAL_GROUPS):
+    _GROUP_OF[sorted(_materials)] = _index
+
+
+def by_material_group(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], tuple]:
+    """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles grouped by
+    material group, the groups in the order of their first triangle (so what was drawn first
+    mostly still is) and each group's triangles in their order; and the groups as
+    `(group, first vertex, vertex count)`."""
+    if not len(vertices):
+        return vertices, ()
+    triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
+    codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
+    groups = _GROUP_OF[codes]
+    present, first = np.unique(groups, return_index=True)
+    in_order = present[np.argsort(first)]
+    rank = np.empty(len(MATERIAL_GROUPS) + 1, np.int64)
+    rank[in_order] = np.arange(len(in_order))
+    order = np.argsort(rank[groups], kind="stable")
+    counts = np.bincount(rank[groups], minlength=len(in_order))
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    ranges = tuple(
+        (int(group), 3 * int(start), 3 * int(count))
+        for group, start, count in zip(in_order, starts, counts, strict=False)
+    )
+    return np.ascontiguousarray(triangles[order].reshape(-1, FLOATS_PER_VERTEX)), ranges
 
 
 def scene_variant(look: ShaderLook) -> tuple[str, ...]:
@@ -209,18 +269,14 @@ class GLRenderer:
         self.lamps = frozenset(lamps)
         self.street_lamps = np.asarray(street_lamps, dtype=np.float64).reshape(-1, 3)
         with current(context):
-            self.labels_program = context.program(vertex_shader=shader_source("scene.vert"),
-                                                  fragment_shader=shader_source("labels.frag"))  # fmt: skip
-            self.sky_program = context.program(vertex_shader=shader_source("sky.vert"),
-                                               fragment_shader=shader_source("sky.frag"))  # fmt: skip
-            self.shadow_program = context.program(vertex_shader=shader_source("shadow.vert"),
-                                                  fragment_shader=shader_source("shadow.frag"))  # fmt: skip
-            vertices = static_vertices(static_meshes)
+            self.labels_program = _program("scene.vert", "labels.frag")
+            self.sky_program = _program("sky.vert", "sky.frag")
+            self.shadow_program = _program("shadow.vert", "shadow.frag")
+            vertices, self.static_groups = by_material_group(static_vertices(static_meshes))
             self.static_count = len(vertices)
             self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
             self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
-            self.scene_programs: dict[tuple[str, ...], object] = {}  # moderngl programs
             corners = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
             self.sky_buffer = context.buffer(corners.tobytes())
             self.sky_array = context.vertex_array(
@@ -231,10 +287,12 @@ class GLRenderer:
             self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self.shadow_framebuffer = context.framebuffer(depth_attachment=self.shadow_texture)
             self.wear_texture = _wear_texture(context, wear)
-            self.lamp_texture = _float_texture(context, np.zeros((1, 1), np.float32))
+            self.lamp_texture = _float_texture(context, np.zeros((1, 1, 2), np.float32))
         self.lamp_light: LampRaster | None = None
+        self.lit: object = None  # the state whose headlights the light texture holds
         self.wear = wear
         self.dynamic_count = 0
+        self.dynamic_groups: tuple[tuple[int, int, int], ...] = ()
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
         # each model's last pose and the animation it was posed for: a frame syncs twice (the
@@ -247,13 +305,8 @@ class GLRenderer:
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
-        """The scene shader compiled with `variant`'s defines (once per variant)."""
-        program = self.scene_programs.get(variant)
-        if program is None:
-            program = self.context.program(vertex_shader=shader_source("scene.vert"),
-                                           fragment_shader=shader_source("scene.frag", variant))  # fmt: skip
-            self.scene_programs[variant] = program
-        return program
+        """The scene shader compiled with `variant`'s defines."""
+        return _program("scene.vert", "scene.frag", variant)
 
     def _array(self, buffer_name: str, program_key: object):
         """The vertex array feeding a program from the static or dynamic buffer (made once per
@@ -280,6 +333,7 @@ class GLRenderer:
         """The clip's sky, light and weather (the uniforms of `sim/shaders`)."""
         self.look = look
         self.shadowed = None
+        self.lit = None
 
     def _apply_look(
         self, program, look: ShaderLook, camera_position: NDArray[np.float64], far_m: float
@@ -303,10 +357,6 @@ class GLRenderer:
             extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
             _set(program, "lamp_origin", raster.origin_xy_m)
             _set(program, "lamp_extent", tuple(float(v) for v in extent))
-        spots = self.lights.headlights[:MAX_SPOTS] if look.headlights and look.lamps_on else ()
-        _set(program, "spot_count", len(spots))
-        _set_array(program, "spot_positions", np.array([s[0] for s in spots]), MAX_SPOTS)
-        _set_array(program, "spot_directions", np.array([s[1] for s in spots]), MAX_SPOTS)
         if self.wear is not None:
             cells = np.array(self.wear.values.shape[1::-1], np.float64) * self.wear.cell_m
             _set(program, "wear_origin", self.wear.origin_xy_m)
@@ -318,8 +368,8 @@ class GLRenderer:
         _set(program, "lamp_map", 2)
 
     def _lamp_raster(self) -> LampRaster:
-        """The street lamps' light (`conditions.lamp_raster`), made and uploaded on the first
-        draw that needs it (only clips with the lamps on do)."""
+        """The street lamps' light (`conditions.lamp_raster`), made on the first draw that needs
+        it (only clips with the lamps on do)."""
         if self.lamp_light is None:
             lamps = self.street_lamps
             if len(lamps):
@@ -327,10 +377,26 @@ class GLRenderer:
                 self.lamp_light = lamp_raster(lamps, (low[0], low[1], high[0], high[1]))
             else:
                 self.lamp_light = LampRaster((0.0, 0.0), 1.0, np.zeros((1, 1), np.float32))
-            values = np.ascontiguousarray(self.lamp_light.values)
+        return self.lamp_light
+
+    def _light_texture(self, look: ShaderLook) -> None:
+        """The light on level ground as a two-channel texture, the street lamps' (red) and the
+        nearest `MAX_SPOTS` headlights' (green; `conditions.headlight_raster`), made again when
+        the state's lights changed: one texel read in the shader for every lamp and beam."""
+        if self.lit == self.synced:
+            return
+        raster = self._lamp_raster()
+        spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
+        values = np.zeros((*raster.values.shape, 2), np.float32)
+        values[..., 0] = raster.values
+        if spots:
+            values[..., 1] = headlight_raster(spots, raster, look.spot_reach_m)
+        if self.lamp_texture.size != values.shape[1::-1]:
             self.lamp_texture.release()
             self.lamp_texture = _float_texture(self.context, values)
-        return self.lamp_light
+        else:
+            self.lamp_texture.write(values.tobytes())
+        self.lit = self.synced
 
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
@@ -343,6 +409,7 @@ class GLRenderer:
         self.bodies = {}
         self.posed = {}
         self.synced = None
+        self.lit = None
 
     def sync(
         self,
@@ -379,7 +446,7 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        vertices = np.concatenate(parts)
+        vertices, self.dynamic_groups = by_material_group(np.concatenate(parts))
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
                 for key in [k for k in self.arrays if k[0] == "dynamic"]:
@@ -408,20 +475,28 @@ class GLRenderer:
         return framebuffer
 
     def _draw_geometry(self, program_key: object) -> None:
+        """Both buffers with the labels program (`program_key` "labels"), or with the scene
+        shader of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
         import moderngl
 
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
-        if self.dynamic_count:
-            self.context.disable(moderngl.CULL_FACE)
-            self._array("dynamic", program_key).render(
-                moderngl.TRIANGLES, vertices=self.dynamic_count
-            )
-        if self.static_count:
-            self.context.enable(moderngl.CULL_FACE)
-            self._array("static", program_key).render(
-                moderngl.TRIANGLES, vertices=self.static_count
-            )
+        for buffer_name, count, groups in (
+            ("dynamic", self.dynamic_count, self.dynamic_groups),
+            ("static", self.static_count, self.static_groups),
+        ):
+            if not count:
+                continue
+            if buffer_name == "dynamic":
+                self.context.disable(moderngl.CULL_FACE)
+            else:
+                self.context.enable(moderngl.CULL_FACE)
+            if program_key == "labels":
+                self._array(buffer_name, "labels").render(moderngl.TRIANGLES, vertices=count)
+                continue
+            for group, first, vertices in groups:
+                array = self._array(buffer_name, group_defines(group, program_key))
+                array.render(moderngl.TRIANGLES, vertices=vertices, first=first)
 
     def _shadow_pass(self, matrix: NDArray[np.float64]) -> None:
         """The sun's depth over the focus into the shadow map (once per state)."""
@@ -486,15 +561,19 @@ class GLRenderer:
             else:
                 # shadows, night, wet and fog are compiled in: the variant the look needs
                 variant = scene_variant(shader_look)
-                program = self._scene_program(variant)
-                self._apply_look(program, shader_look, camera_position, far_m)
+                if shader_look.lamps_on:
+                    self._light_texture(shader_look)
+                groups = {group for group, _, _ in (*self.dynamic_groups, *self.static_groups)}
+                for group in sorted(groups):
+                    program = self._scene_program(group_defines(group, variant))
+                    self._apply_look(program, shader_look, camera_position, far_m)
+                    program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+                    _set_matrix(program, "shadow_matrix", sun_matrix)
                 rotation_only = view_matrix.copy()
                 rotation_only[:3, 3] = 0.0
                 inverse = np.linalg.inv(projection_matrix @ rotation_only)
                 _set_matrix(self.sky_program, "inverse_view_projection", inverse)
                 self.context.enable(moderngl.DEPTH_TEST)
-                program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                _set_matrix(program, "shadow_matrix", sun_matrix)
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
                 self.lamp_texture.use(location=2)
@@ -519,7 +598,8 @@ class GLRenderer:
         return rgb, depth_m, body
 
     def release(self) -> None:
-        """Free the buffers and framebuffers (the context stays for the process's next world)."""
+        """Free the buffers and framebuffers (the context and the compiled programs stay for the
+        process's next world)."""
         with current(self.context):
             for framebuffer in self.framebuffers.values():
                 for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
@@ -529,11 +609,18 @@ class GLRenderer:
                 array.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
                              self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
-                             self.wear_texture, self.lamp_texture, self.labels_program,
-                             self.sky_program, self.shadow_program,
-                             *self.scene_programs.values()):  # fmt: skip
+                             self.wear_texture, self.lamp_texture):  # fmt: skip
                 resource.release()
         self.framebuffers = {}
+
+
+@functools.cache
+def _program(vertex: str, fragment: str, defines: tuple[str, ...] = ()):
+    """The program of two shader files (`defines`: the fragment shader's variant), compiled once
+    per process for its one context (`_context`) and kept for every world after: each world
+    draws with up to sixteen variants, and llvmpipe takes tens of milliseconds to compile one."""
+    return _context().program(vertex_shader=shader_source(vertex),
+                              fragment_shader=shader_source(fragment, defines))  # fmt: skip
 
 
 def _wear_texture(context, wear: WearRaster | None):
@@ -551,10 +638,11 @@ def _wear_texture(context, wear: WearRaster | None):
 
 
 def _float_texture(context, values: NDArray[np.float32]):
-    """A single-channel float texture of `(rows, columns)` values, filtered linearly, clamped."""
+    """A float texture of `(rows, columns, channels)` values, filtered linearly, clamped."""
     import moderngl
 
-    texture = context.texture(values.shape[::-1], 1, values.tobytes(), dtype="f4")
+    rows, columns, channels = values.shape
+    texture = context.texture((columns, rows), channels, values.tobytes(), dtype="f4")
     texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
     texture.repeat_x = texture.repeat_y = False
     return texture
@@ -564,16 +652,6 @@ def _set(program, name: str, value) -> None:
     """A uniform's value, where the compiled program kept it (unused ones are dropped)."""
     if name in program:
         program[name].value = value
-
-
-def _set_array(program, name: str, rows: NDArray, size: int) -> None:
-    """A vec3 array uniform from `(K, 3)` rows, padded to its `size`."""
-    if name not in program:
-        return
-    padded = np.zeros((size, 3), np.float32)
-    rows = np.asarray(rows, np.float32).reshape(-1, 3)[:size]
-    padded[: len(rows)] = rows
-    program[name].write(padded.tobytes())
 
 
 def _set_matrix(program, name: str, matrix: NDArray) -> None:

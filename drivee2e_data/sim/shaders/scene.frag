@@ -1,18 +1,21 @@
 // The scene pass (common.glsl is prepended): materials, sun and shadow, sky light, street
 // lamps and headlights, wet surfaces and fog; writes colour, body id and depth in one pass.
 // Uniforms: sky_ambient, ground_ambient (light from above and below), shadow_map, fog_rgb,
-// fog_density (per metre), wetness (0..1), camera_position, lamp_map,
-// lamp_origin, lamp_extent (the street lamps' light on level ground, a raster: world corner
-// and size in metres), lamp_rgb, spot_count, spot_positions[MAX_SPOTS],
-// spot_directions[MAX_SPOTS], spot_rgb, spot_reach_m, wear_map, wear_origin, wear_extent
-// (the road-wear raster: world corner, size in metres).
+// fog_density (per metre), wetness (0..1), camera_position, lamp_map (the street lamps'
+// and the headlights' light on level ground, two channels of a raster), lamp_origin,
+// lamp_extent (its world corner and size in metres), lamp_rgb, spot_rgb (the headlights'
+// colour), wear_map, wear_origin, wear_extent (the road-wear raster: world corner, size in
+// metres).
 // Compiled in variants (the renderer prepends the defines that a clip's look needs: features
 // a clip does not use cost nothing, where a uniform switch still cost a third of an image on
 // llvmpipe): SHADOWS (the sun's shadow map), NIGHT (street lamps, headlights, lit windows),
-// WET (darker, glossy ground), FOG (fog by depth).
-#define MAX_SPOTS 6
-#define SPOT_GAIN 3.0
+// WET (darker, glossy ground), FOG (fog by depth). And per draw, the materials it holds:
+// HAS_ASPHALT, HAS_MARKING, HAS_PAVEMENT, HAS_GRASS, HAS_FOLIAGE, HAS_FACADE (their textures'
+// code) and GLOSSY (highlights and reflections); llvmpipe runs every branch for every pixel,
+// so a draw pays only for the code its materials need.
 #define LAMP_WALL_SHARE 0.35  // a wall gets this share of what level ground under it gets
+#define BEAM_WALL_SHARE 1.0  // and of a headlight's (a beam meets it more squarely)
+#define BEAM_HEIGHT_M 4.0  // headlights light surfaces below this
 #define MATTE 0
 #define PAINT 1
 #define GLASS 2
@@ -36,11 +39,7 @@ uniform sampler2D lamp_map;
 uniform vec2 lamp_origin;
 uniform vec2 lamp_extent;
 uniform vec3 lamp_rgb;
-uniform int spot_count;
-uniform vec3 spot_positions[MAX_SPOTS];
-uniform vec3 spot_directions[MAX_SPOTS];
 uniform vec3 spot_rgb;
-uniform float spot_reach_m;
 uniform sampler2D wear_map;
 uniform vec2 wear_origin;
 uniform vec2 wear_extent;
@@ -77,28 +76,39 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
     float fine = clamp(1.0 - eye_depth / 35.0, 0.0, 1.0);  // grain fades before it aliases
     shine = vec2(0.0, 1.0);
     glow = 0.0;
+#ifdef HAS_ASPHALT
     if (material == ASPHALT) {
         float grain = hash(floor(p * 9.0)) - 0.5;  // aggregate: a speckle, one hash a cell
         vec2 ground = texture(wear_map, (p - wear_origin) / wear_extent).rg;  // wear, mottle
         return base * (1.0 + 0.22 * grain * fine + 0.35 * (ground.g - 0.5)) * (1.0 - 0.28 * ground.r);
     }
+#endif
+#ifdef HAS_MARKING
     if (material == MARKING) {
         return base * (0.9 + 0.16 * hash(floor(p * 4.0)) * fine);
     }
+#endif
+#ifdef HAS_PAVEMENT
     if (material == PAVEMENT) {
         vec2 slab = fract(p / vec2(0.6, 0.6));
         float joint = step(0.06, slab.x) * step(0.06, slab.y);
         float tone = 0.92 + 0.16 * hash(floor(p / 0.6));
         return base * tone * mix(0.8, 1.0, mix(1.0, joint, fine));
     }
+#endif
+#ifdef HAS_GRASS
     if (material == GRASS) {
         float mottle = texture(wear_map, (p - wear_origin) / wear_extent).g;
         return base * (0.72 + 0.5 * mottle) * (1.0 + 0.2 * (hash(floor(p * 6.0)) - 0.5) * fine);
     }
+#endif
+#ifdef HAS_FOLIAGE
     if (material == FOLIAGE) {
         vec2 q = world_position.xy * 2.2 + world_position.z * 1.7;
         return base * (0.6 + 0.7 * noise(q)) * (0.9 + 0.2 * hash(floor(q * 3.1)));
     }
+#endif
+#ifdef HAS_FACADE
     if (material == FACADE) {
         if (abs(n.z) > 0.5) return base * 0.55;  // roofs: dark gravel
         vec2 tangent = normalize(vec2(-n.y, n.x));
@@ -120,6 +130,7 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
         }
         return base * band * (0.94 + 0.1 * hash(cell));
     }
+#endif
     if (material == PAINT) shine = vec2(0.35, 40.0);
     if (material == GLASS) shine = vec2(0.7, 120.0);
     if (material == TYRE) shine = vec2(0.02, 8.0);
@@ -144,6 +155,7 @@ void main() {
     vec3 ambient = mix(ground_ambient, sky_ambient, 0.5 + 0.5 * n.z);
     vec3 lit = base * (ambient + sun * sun_rgb * max(dot(n, light_direction), 0.0));
     float fresnel = 0.0;
+#ifdef GLOSSY
     if (shine.x > 0.0) {  // glossy: paint, glass, lit windows, wet ground
         vec3 view = normalize(camera_position - world_position);
         vec3 half_vector = normalize(light_direction + view);
@@ -157,28 +169,19 @@ void main() {
             lit = mix(lit, sky * 0.8, clamp(fresnel * shine.x, 0.0, 0.85));
         }
     }
+#endif
 #ifdef NIGHT
-    {  // street lamps: their light on level ground, read from a raster
-        float level = texture(lamp_map, (world_position.xy - lamp_origin) / lamp_extent).r;
-        float facing = LAMP_WALL_SHARE + (1.0 - LAMP_WALL_SHARE) * max(n.z, 0.0);
+    {  // street lamps (red) and headlights (green): their light on level ground, a raster
+        vec2 level = texture(lamp_map, (world_position.xy - lamp_origin) / lamp_extent).rg;
+        float up = max(n.z, 0.0);
+        float facing = LAMP_WALL_SHARE + (1.0 - LAMP_WALL_SHARE) * up;
         float low = clamp(1.0 - world_position.z / 12.0, 0.2, 1.0);  // they shine down
-        vec3 lamp = lamp_rgb * (level * facing * low);
+        vec3 lamp = lamp_rgb * (level.r * facing * low);
         lit += base * lamp + lamp * (0.35 * shine.x * fresnel);  // a sheen on wet ground
-    }
-    for (int i = 0; i < spot_count; ++i) {  // headlights: cones along the vehicles' headings
-        vec3 to_light = spot_positions[i] - world_position;
-        float squared = dot(to_light, to_light);
-        float aim = -dot(to_light, spot_directions[i]);  // distance x cosine off the beam
-        // outside the cone (cosine below 0.82) or beyond the reach: no light (cheap tests)
-        if (aim <= 0.0 || aim * aim < 0.6724 * squared || squared > spot_reach_m * spot_reach_m)
-            continue;
-        float inverse = inversesqrt(squared);
-        float cone = smoothstep(0.82, 0.95, aim * inverse);
-        float reach = 1.0 - squared * inverse / spot_reach_m;
-        // headlight beams are shaped to throw far along the road: the road, met at a grazing
-        // angle, is lit more than a cosine law from one point would give (a wrapped cosine)
-        float facing = clamp((dot(n, to_light) * inverse + 0.6) / 1.6, 0.0, 1.0);
-        lit += (SPOT_GAIN * cone * reach * reach * facing) * spot_rgb * (base + 0.12 * shine.x);
+        // headlights light low down
+        float beam = level.g * mix(BEAM_WALL_SHARE, 1.0, up)
+            * clamp(1.0 - world_position.z / BEAM_HEIGHT_M, 0.0, 1.0);
+        lit += beam * spot_rgb * (base + 0.12 * shine.x);
     }
 #endif
     float shining = emission;

@@ -1,0 +1,102 @@
+"""The closed-loop benchmark: `evaluate`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from tqdm import tqdm
+
+from drivee2e_data import splits
+from drivee2e_data.agents import registry
+from drivee2e_data.agents.registry import AGENTS
+from drivee2e_data.cli.arguments import (
+    _positive,
+    _split_options,
+)
+from drivee2e_data.curation.occlusion import Variant
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate import runner
+from drivee2e_data.sim.world import RENDERERS
+
+
+def add_evaluate(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `evaluate` command's arguments."""
+    evaluate = commands.add_parser(
+        "evaluate", help="closed loop: drive each clip of a split with an agent; SR and DS"
+    )
+    evaluate.add_argument("data", type=Path, help="data root (curated; logs for --variant)")
+    _split_options(evaluate, "val")
+    evaluate.add_argument(
+        "--agent", default="expert", help=f"{', '.join(AGENTS)}, or MODULE:CLASS (default expert)"
+    )
+    evaluate.add_argument(
+        "--agent-cmd", default=None, metavar="CMD", help="run the agent as this child process "
+        "(its own environment; protocol in drivee2e_data/evaluate/agent_client.py)",
+    )  # fmt: skip
+    evaluate.add_argument("--checkpoint", type=Path, default=None, help="the agent's checkpoint")
+    evaluate.add_argument(
+        "--reactive", action="store_true", help="vehicles follow their paths with IDM"
+    )
+    evaluate.add_argument("--variant", choices=[v.value for v in Variant], default="complete")
+    evaluate.add_argument(
+        "--min-speed",
+        action="store_true",
+        help="apply LB2's minimum-speed penalty (off by default)",
+    )
+    evaluate.add_argument("--workers", type=_positive, default=1, help="processes (default 1)")
+    evaluate.add_argument("--record", action="store_true", help="write RUN/records/<clip>.mcap")
+    evaluate.add_argument("--seed", type=int, default=0)
+    evaluate.add_argument("--renderer", choices=RENDERERS, default="auto")
+    evaluate.add_argument(
+        "--step-timeout",
+        type=float,
+        default=30.0,
+        help="seconds an --agent-cmd child may take a step",
+    )
+    evaluate.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="run folder (default DATA/results/AGENT-SPLIT-VARIANT)",
+    )
+    evaluate.add_argument("--only", nargs="+", default=None, metavar="ID", help="these clips only")
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    if args.agent_cmd is None:
+        registry.build(args.agent, args.checkpoint)  # a bad name or checkpoint fails here, once
+    options = runner.EvaluationOptions(
+        agent=args.agent,
+        checkpoint=str(args.checkpoint) if args.checkpoint else None,
+        agent_cmd=args.agent_cmd,
+        reactive=args.reactive,
+        variant=args.variant,
+        min_speed=args.min_speed,
+        record=args.record,
+        seed=args.seed,
+        renderer=args.renderer,
+        step_timeout_s=args.step_timeout,
+    )
+    manifest = splits.split_path(args.data, args.split_name)
+    if not manifest.is_file():
+        raise DriveE2EError(f"{manifest}: no split manifest; run drivee2e split {args.data}")
+    clips = splits.scenario_ids(manifest, args.split)
+    if args.only:
+        clips = [c for c in clips if c in set(args.only)]
+    if not clips:
+        raise DriveE2EError(f"{manifest}: split {args.split!r} has no clips to evaluate")
+    out = args.out or args.data / runner.RESULTS_FOLDER / runner.run_name(options, args.split)
+    with tqdm(total=len(clips), unit="episode", desc="evaluating", disable=None) as bar:
+        bar.update(len(clips) - len(runner.prepare_run(args.data, out, options, clips)))
+
+        def done(row: dict) -> None:
+            bar.update(1)
+            if row.get("status") in ("error", "agent_failed"):
+                bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
+
+        rows = runner.evaluate(args.data, clips, options, out, args.workers, done, registry.build)
+    summary = runner.write_results(out, rows, options)
+    print(runner.markdown_table(summary), end="")
+    print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")
+    return 0

@@ -1,0 +1,216 @@
+"""Imitation learning on the logs: `train`, `predict`, `openloop` (L2 and collisions), `export`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tqdm import tqdm
+
+from drivee2e_data import openloop, splits, store
+from drivee2e_data.agents import admlp, camera
+from drivee2e_data.agents.constant_velocity import ConstantVelocity
+from drivee2e_data.agents.training import TrainOptions
+from drivee2e_data.cli.arguments import (
+    _cell,
+    _positive,
+    _print_table,
+    _split_options,
+)
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.export.infos import export_infos
+from drivee2e_data.export.nuscenes import export_nuscenes
+from drivee2e_data.loaders.dataset import DriveE2EDataset
+from drivee2e_data.metrics.openloop import CONVENTIONS
+
+PLANNERS = ("constant-velocity", "admlp", "camera")
+
+
+def add_train(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `train` command's arguments."""
+    train = commands.add_parser("train", help="train a baseline planner on a split")
+    train.add_argument("model", choices=("admlp", "camera"), help="which baseline")
+    train.add_argument("data", type=Path, help="data root (collected, split)")
+    _split_options(train, "train")
+    train.add_argument("--out", type=Path, required=True, help="checkpoint to write (resumes)")
+    train.add_argument(
+        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 40"
+    )
+    train.add_argument(
+        "--batch-size", type=_positive, default=None, help="default: admlp 64, camera 32"
+    )
+    train.add_argument("--learning-rate", type=float, default=1e-3)
+    train.add_argument("--seed", type=int, default=0)
+
+
+def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `predict` command's arguments."""
+    predict = commands.add_parser(
+        "predict", help="a baseline's plans for every sample of a split (predictions file)"
+    )
+    predict.add_argument("data", type=Path, help="data root")
+    _split_options(predict, "val")
+    predict.add_argument("--model", choices=PLANNERS, required=True)
+    predict.add_argument("--checkpoint", type=Path, help="the model's checkpoint (admlp)")
+    predict.add_argument("--out", type=Path, required=True, help="predictions Parquet to write")
+
+
+def add_openloop(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `openloop` command's arguments."""
+    openloop = commands.add_parser(
+        "openloop", help="score a predictions file: L2 and collision rate, per category"
+    )
+    openloop.add_argument("data", type=Path, help="data root")
+    _split_options(openloop, "val")
+    openloop.add_argument(
+        "--predictions", type=Path, required=True, help="Parquet (docs/loaders.md)"
+    )
+    openloop.add_argument("--convention", choices=CONVENTIONS, default="stp3")
+    openloop.add_argument("--json", type=Path, default=None, help="also save the table as JSON")
+
+
+def add_export(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `export` command's arguments."""
+    export = commands.add_parser("export", help="write the nuScenes layout or VAD info pickles")
+    export.add_argument("format", choices=("nuscenes", "infos"))
+    export.add_argument("data", type=Path, help="data root (collected)")
+    export.add_argument(
+        "--out", type=Path, required=True, help="nuscenes: a new folder; infos: the .pkl to write"
+    )
+    export.add_argument("--version", dest="table_version", default="v1.0-drivee2e")
+    export.add_argument("--split", choices=(*splits.SPLITS, "all"), default="all")
+    export.add_argument("--split-name", default="default", help="DATA/splits/NAME.csv, or a .csv")
+    export.add_argument(
+        "--keyframe-every", type=_positive, default=5, help="frames per sample (5: 2 Hz)"
+    )
+    export.add_argument(
+        "--nuscenes", type=Path, default=None, help="infos: the nuscenes export the paths name"
+    )
+
+
+def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
+    """The split's samples without sensor data or map labels: what planners of the ego's
+    state and the metrics read (map labels would be computed for every sample and never read)."""
+    return DriveE2EDataset(args.data, args.split, args.split_name, cameras=(), with_map=False)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    epochs = args.epochs or (60 if args.model == "admlp" else 40)
+    batch_size = args.batch_size or (64 if args.model == "admlp" else 32)
+    options = TrainOptions(epochs, batch_size, args.learning_rate, args.seed)
+    if args.model == "camera":
+        dataset, trainer = camera.dataset_for(args.data, args.split, args.split_name), camera.train
+    else:
+        dataset, trainer = _labels_only(args), admlp.train
+    with (
+        tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,
+        tqdm(total=epochs, unit="epoch", desc=f"training {args.model}", disable=None) as bar,
+    ):
+
+        def on_epoch(epoch: int, loss: float) -> None:
+            bar.n = epoch
+            bar.set_postfix(loss=f"{loss:.3f}")
+            bar.refresh()
+
+        saved = trainer(dataset, args.out, options, on_epoch, reading.update)
+    print(
+        f"{args.model}: {saved['samples']} samples, {saved['epoch']} epochs, final L1 loss "
+        f"{saved['losses'][-1]:.3f} m; wrote {args.out}"
+    )
+    return 0
+
+
+def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    if args.model in ("admlp", "camera"):
+        if args.checkpoint is None:
+            raise DriveE2EError(
+                f"--model {args.model} needs --checkpoint (drivee2e train {args.model} writes one)"
+            )
+        return (
+            admlp.load(args.checkpoint)
+            if args.model == "admlp"
+            else camera.CameraPlanner(args.checkpoint)
+        )
+    return ConstantVelocity()
+
+
+def run_predict(args: argparse.Namespace) -> int:
+    planner = _planner(args)
+    if args.model == "camera":
+        dataset = camera.dataset_for(args.data, args.split, args.split_name)
+    else:
+        dataset = _labels_only(args)
+    with tqdm(
+        total=len(dataset), unit="sample", desc=f"planning ({args.model})", disable=None
+    ) as bar:
+        table = openloop.predict(dataset, planner, bar.update)
+    openloop.write_predictions(args.out, table)
+    print(f"wrote {args.out}: {table.num_rows} plans for split {args.split}")
+    return 0
+
+
+def run_openloop(args: argparse.Namespace) -> int:
+    dataset = _labels_only(args)
+    plans = openloop.read_predictions(args.predictions, dataset)
+    with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
+        results = openloop.score(dataset, plans, args.convention, bar.update)
+    keys = (
+        "l2_1s",
+        "l2_2s",
+        "l2_3s",
+        "l2_avg",
+        "collision_1s",
+        "collision_2s",
+        "collision_3s",
+        "collision_avg",
+    )
+    header = ("category", "samples", *(k.replace("collision", "col") for k in keys))
+    rows = [
+        (name, str(values["samples"]), *(_cell(values.get(k), k) for k in keys))
+        for name, values in results.items()
+    ]
+    print(
+        f"open-loop, {args.convention} convention, split {args.split}: {len(plans)} of {len(dataset)} samples planned"
+    )
+    _print_table(header, rows)
+    if args.json is not None:
+        document = {"convention": args.convention, "split": args.split, "results": results}
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        store.write_bytes_atomic(args.json, json.dumps(document, indent=2).encode())
+        print(f"wrote {args.json}")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    with tqdm(unit="sample", desc=f"exporting {args.format}", disable=None) as bar:
+        if args.format == "nuscenes":
+            summary = export_nuscenes(
+                args.data,
+                args.out,
+                args.table_version,
+                args.split,
+                args.split_name,
+                args.keyframe_every,
+                bar.update,
+            )
+            message = (
+                f"wrote {summary.out}: {summary.scenes} scenes, {summary.samples} samples, "
+                f"{summary.annotations} annotations ({args.table_version})"
+            )
+        else:
+            if args.nuscenes is None:
+                raise DriveE2EError("export infos needs --nuscenes ROOT (drivee2e export nuscenes)")
+            count = export_infos(
+                args.data,
+                args.out,
+                args.nuscenes,
+                args.table_version,
+                args.split,
+                args.split_name,
+                args.keyframe_every,
+                bar.update,
+            )
+            message = f"wrote {args.out}: {count} infos (split {args.split})"
+    print(message)
+    return 0
