@@ -144,17 +144,22 @@ def _frame_boxes(message) -> FrameBoxes:  # type: ignore[no-untyped-def]
 
 
 def _ego_lights(messages: list, route_lane_ids: list[str]) -> NDArray[np.int64]:
-    """Per frame, the state of the first signal along the route (the light the ego faces on
-    its way through the junction); NONE where no route lane is signal-controlled."""
+    """Per frame, the state of the signal that binds the ego (the log's `ego_signal_id`: the
+    next signal-controlled stop line ahead along its route, none once past the last); NONE
+    where none does. Logs written before that field (2026-11-24) give the first signal along
+    the route at every frame."""
     none = LIGHT_STATES.index("NONE")
     result = np.full(len(messages), none, np.int64)
+    per_frame = bool(messages) and "ego_signal_id" in messages[0].DESCRIPTOR.fields_by_name
     for row, message in enumerate(messages):
-        controlling = {
-            lane: light.state for light in message.lights for lane in light.controlled_lane_ids
-        }
-        for lane_id in route_lane_ids:
-            if lane_id in controlling:
-                state = controlling[lane_id]
-                result[row] = LIGHT_STATES.index(state) if state in LIGHT_STATES[:3] else none
-                break
+        states = {light.signal_id: light.state for light in message.lights}
+        if per_frame:
+            state = states.get(message.ego_signal_id) if message.ego_signal_id else None
+        else:
+            controlling = {
+                lane: light.state for light in message.lights for lane in light.controlled_lane_ids
+            }
+            state = next((controlling[k] for k in route_lane_ids if k in controlling), None)
+        if state in LIGHT_STATES[:3]:
+            result[row] = LIGHT_STATES.index(state)
     return result

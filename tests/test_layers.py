@@ -10,7 +10,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # (layer, module-name prefixes), lowest first; a module may import its own layer and those below
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("geometry", ("geometry", "arrays", "errors", "processes")),
-    ("data model", ("scenario", "hdmap", "sun", "ego_limits")),
+    ("data model", ("scenario", "hdmap", "sun", "ego_limits", "binding")),
     ("storage", ("mapjson", "store")),
     ("sources, curation", ("sources", "curation")),
     ("sim", ("sim",)),

@@ -469,3 +469,41 @@ def test_bev_segmentation_agrees_with_the_map(loader_root: Path) -> None:
     assert (layers[0] == on_road).mean() > 0.97  # only pixels on the road's edge may differ
     assert (layers[2] == on_crossing).mean() > 0.99
     assert layers[1].sum() > 50  # lane lines drawn
+
+
+def test_traffic_light_field_is_the_signal_binding_the_ego_at_each_frame(
+    loader_root: Path,
+) -> None:
+    """The log's light per frame is the state of `binding_signals`' signal, worked out here
+    from the clip's scenario and map alone; the Dataset's one-hot field agrees."""
+    from drivee2e_data.binding import binding_signals, front_bumper
+    from drivee2e_data.loaders.clip import LIGHT_STATES, read_clip
+    from drivee2e_data.scenario import SignalState
+
+    checked = bound_frames = 0
+    for scenario_id in store.scenario_ids(loader_root):
+        scenario = store.read_scenario(loader_root, scenario_id)
+        intersection_map = store.read_map(loader_root, scenario.map_id)
+        ego = scenario.ego
+        front = front_bumper(ego.xy_m, ego.yaw_rad, float(np.median(ego.length_m)))
+        bound = binding_signals(intersection_map, scenario.route.lane_ids, front)
+        states = {s.signal_id: s.states for s in scenario.signals}
+        with LogReader(loader_root / "logs" / f"{scenario_id}.mcap") as log:
+            clip = read_clip(log)
+        for row in range(len(clip.t_ns)):
+            frame = clip.first_frame + row
+            name = "NONE"
+            if bound[frame] is not None:
+                name = SignalState(int(states[bound[frame]][frame])).name
+                bound_frames += 1
+            expected = LIGHT_STATES.index(name if name in LIGHT_STATES[:3] else "NONE")
+            assert clip.ego_light[row] == expected, (scenario_id, frame)
+            checked += 1
+    assert checked >= 50 and bound_frames >= 10  # the clips' first frames: before their lines
+    dataset = DriveE2EDataset(loader_root, "test")
+    scenario_id, frame = dataset.samples[0]
+    with LogReader(loader_root / "logs" / f"{scenario_id}.mcap") as log:
+        clip = read_clip(log)
+    one_hot = dataset[0]["traffic_light_state"]
+    assert int(one_hot.argmax()) == clip.ego_light[frame - clip.first_frame]
+    assert float(one_hot.sum()) == 1.0

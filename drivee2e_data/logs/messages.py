@@ -247,10 +247,12 @@ def signal_lanes(intersection_map: IntersectionMap) -> dict[str, list[str]]:
 
 
 def traffic_lights(
-    t_ns: int, frame: SensorFrame, lanes: dict[str, list[str]]
+    t_ns: int, frame: SensorFrame, lanes: dict[str, list[str]], ego_signal_id: str | None = None
 ) -> schemas.TrafficLights:
-    """Every signal's state at the frame with the lanes it controls (`signal_lanes`)."""
+    """Every signal's state at the frame with the lanes it controls (`signal_lanes`), and the
+    signal that binds the ego (`binding.binding_signals`; none: '')."""
     message = _stamp(schemas.TrafficLights(), t_ns)
+    message.ego_signal_id = ego_signal_id or ""
     for signal_id, state in sorted(frame.signals.items()):
         message.lights.add(
             signal_id=signal_id, state=state.name, controlled_lane_ids=lanes.get(signal_id, [])

@@ -97,6 +97,8 @@ MESSAGES: dict[str, tuple[tuple[str, str, bool], ...]] = {
     "TrafficLights": (
         ("timestamp", ".google.protobuf.Timestamp", False),
         ("lights", ".drivee2e.TrafficLight", True),
+        # the signal that binds the ego at this frame ('' for none: `binding.binding_signals`)
+        ("ego_signal_id", "string", False),
     ),
 }
 # high-level command, as nuScenes-trained planners read it (ego_fut_cmd: right, left, straight)

@@ -18,6 +18,7 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from drivee2e_data import __version__, store
+from drivee2e_data.binding import binding_signals, front_bumper
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.logs import messages, topics
 from drivee2e_data.scenario import Scenario
@@ -81,6 +82,11 @@ class LogWriter:
         self.path, self.partial = path, partial_path(path)
         self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
         self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
+        # the signal binding the ego at each frame of the clip, from its logged pose and route
+        route = scenario.route.lane_ids if scenario.route is not None else ()
+        ego = scenario.ego
+        front = front_bumper(ego.xy_m, ego.yaw_rad, float(motion.size_m[0]))
+        self.binding = binding_signals(intersection_map, route, front)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
         self._writer = McapWriter(
@@ -152,7 +158,10 @@ class LogWriter:
         put(topics.EGO_STATE, messages.ego_state(t, self.motion, frame.frame))
         put(topics.OBJECTS, messages.object_annotations(t, frame))
         put(topics.SCENE, messages.scene_boxes(t, frame))
-        put(topics.TRAFFIC_LIGHTS, messages.traffic_lights(t, frame, self.signal_lanes))
+        put(
+            topics.TRAFFIC_LIGHTS,
+            messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
+        )
         put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
         self._writer.flush()
         self.t_ns.append(int(t))

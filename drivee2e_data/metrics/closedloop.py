@@ -21,8 +21,9 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
+from drivee2e_data.binding import holding_signals
 from drivee2e_data.geometry import box_corners_2d, boxes_overlap, polyline_arclength, wrap_angle
-from drivee2e_data.hdmap import IntersectionMap, Lane, LaneType, line_heading_at
+from drivee2e_data.hdmap import IntersectionMap, LaneType, line_heading_at
 from drivee2e_data.scenario import AgentClass, SignalState
 
 # CARLA ends a route 30 m off it on kilometre-long routes; an intersection's lanes are 3-4 m wide,
@@ -232,7 +233,7 @@ class MapRules:
                 if lane_id not in by_id:
                     continue
                 lane = lanes[by_id[lane_id]]
-                signals = _holding_signals(lane, lanes, by_id, route)
+                signals = holding_signals(lane, lanes, by_id, route)
                 if signals:
                     k = by_id[lane_id]
                     controlled.append(_StopLane(self.lane_polygons[k], self.lane_lines[k], signals))
@@ -286,18 +287,6 @@ class MapRules:
                     crossed.append(stop.stop_line_id)
                     break
         return crossed
-
-
-def _holding_signals(
-    lane: Lane, lanes: list[Lane], by_id: dict[str, int], route: list[str]
-) -> tuple[str, ...]:
-    if lane.signal_id is not None:
-        return (lane.signal_id,)
-    successors = [lanes[by_id[s]] for s in lane.successors if s in by_id]
-    if lane.lane_id in route and route.index(lane.lane_id) + 1 < len(route):
-        following = route[route.index(lane.lane_id) + 1]
-        successors = [m for m in successors if m.lane_id == following] or successors
-    return tuple(sorted({m.signal_id for m in successors if m.signal_id is not None}))
 
 
 def longest_stop_s(speed_mps: NDArray[np.float64], step_s: float = 0.1) -> float:
