@@ -40,7 +40,7 @@ def two_junctions() -> IntersectionMap:
             signal_id="s1",
             predecessors=("a",),
             successors=("b",),
-        ),  # fmt: skip
+        ),
         _lane("b", 12.0, 40.0, predecessors=("j1",), successors=("j2",)),
         _lane(
             "j2",
@@ -50,7 +50,7 @@ def two_junctions() -> IntersectionMap:
             signal_id="s2",
             predecessors=("b",),
             successors=("c",),
-        ),  # fmt: skip
+        ),
         _lane("c", 52.0, 90.0, predecessors=("j2",)),
     )
     return IntersectionMap(
@@ -116,3 +116,24 @@ def test_signal_on_the_approach_lane_and_unsignalled_routes():
     # a route through lanes no stop line crosses, and a route not on the map: nothing binds
     assert binding_signals(intersection_map, ("c",), np.array([[60.0, 0.0]])) == [None]
     assert binding_signals(intersection_map, ("nowhere",), np.array([[0.0, 0.0]])) == [None]
+
+
+def test_the_red_light_rule_reads_the_same_signals_as_the_label():
+    """Crossing a stop line counts as running a red only when that line's holding signal (the
+    one the label binds before the line) is red: the second line with s2 red and s1 green, not
+    the first line's s1 once it is behind."""
+    from drivee2e_data.metrics.closedloop import MapRules
+    from drivee2e_data.scenario import SignalState
+
+    rules = MapRules(two_junctions(), ROUTE)
+    red_second = {"s1": SignalState.GREEN, "s2": SignalState.RED}
+    red_first = {"s1": SignalState.RED, "s2": SignalState.GREEN}
+    across = {1: (np.array([-0.5, 0.0]), np.array([0.5, 0.0])),
+              2: (np.array([39.5, 0.0]), np.array([40.5, 0.0]))}  # fmt: skip
+    assert rules.red_lights_crossed(*across[1], 0.0, red_first) == ["stop_1"]
+    assert rules.red_lights_crossed(*across[1], 0.0, red_second) == []
+    assert rules.red_lights_crossed(*across[2], 0.0, red_second) == ["stop_2"]
+    assert rules.red_lights_crossed(*across[2], 0.0, red_first) == []
+    # and the label at those moments names the signal the rule reads
+    fronts = np.array([across[1][0], across[2][0]])
+    assert binding_signals(two_junctions(), ROUTE, fronts) == ["s1", "s2"]
