@@ -430,3 +430,29 @@ def test_a_cropped_map_drops_references_outside_it_with_one_warning(
     assert [
         lane.lane_id for lane in store.read_map(tmp_path / "lanelet2", summary.maps[0]).lanes
     ] == ["lanelet_20"]
+
+
+@pytest.mark.parametrize("offset_m", [25.0, -25.0])
+def test_v2x_seq_boxes_raised_and_sloped_land_on_the_ground(tmp_path: Path, offset_m: float):
+    """V2X-Seq gives object z (its map is flat): boxes standing on a road 25 m up or down and
+    tilted 5% along x come out of `import` standing on z = 0 (the ground fitted to their
+    bottoms)."""
+    from drivee2e_data import pipeline, store
+
+    folder = tmp_path / "v2x"
+    rows = trajectory_rows()
+    for row in rows:
+        x = float(row["x"]) - BASE[0]
+        row["z"] = f"{0.8 + offset_m + 0.05 * x:.4f}"  # centre 0.8 m up: a 1.6 m box on the road
+    write_csv(folder / "trajectories" / "scene_001.csv", rows)
+    write_csv(folder / "traffic_light" / "scene_001.csv", light_rows())
+    (folder / "maps").mkdir()
+    write_hdmap(folder / "maps" / "hdmap4.json")
+    root = tmp_path / "data"
+    summary = pipeline.import_source(root, "v2x-seq", folder)
+    assert summary.grounds[summary.maps[0]].slope_x == pytest.approx(0.05, abs=1e-3)
+    for scenario_id in summary.scenarios:
+        scenario = store.read_scenario(root, scenario_id)
+        for track in scenario.tracks:
+            bottoms = track.z_m[track.valid] - 0.5 * track.height_m[track.valid]
+            assert np.abs(bottoms).max() < 0.05, track.track_id
