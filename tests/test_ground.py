@@ -250,3 +250,42 @@ def test_each_importer_that_reads_z_lands_a_raised_sloped_scene_on_the_ground(
             bottoms = np.concatenate([t.z_m[t.valid] - 0.5 * t.height_m[t.valid]
                                       for t in b.tracks if t.agent_class.is_motor_vehicle])  # fmt: skip
             assert np.percentile(np.abs(bottoms), 90) < 0.3, b.scenario_id
+
+
+@pytest.mark.parametrize("offset_m", [25.0, -25.0])
+def test_a_lanelet2_map_with_raised_sloped_ele_tags_lands_on_the_ground(
+    tmp_path: Path, offset_m: float
+):
+    """The shared Lanelet2 example (nearly flat: 4 of its 2258 nodes carry an `ele`) given `ele` tags 25 m up
+    or down and rising 5% eastwards imports with its lanes back at z = 0 (within 5 cm)."""
+    import math
+    import re
+
+    from conftest import REALDATA
+
+    from drivee2e_data import pipeline, store
+
+    source = REALDATA / "lanelet2" / "mapping_example.osm"
+    if not source.exists():
+        pytest.skip(f"{source} is absent (../shared/realdata)")
+    text = re.sub(r"<tag k='ele' v='[^']*'\s*/>", "", source.read_text())  # 4 nodes have one
+    first_lon = float(re.search(r"lon='([-\d.]+)'", text).group(1))
+
+    def with_ele(match: re.Match) -> str:
+        attributes, closed = match.group(1), match.group(2)
+        lat = float(re.search(r"lat='([-\d.]+)'", attributes).group(1))
+        lon = float(re.search(r"lon='([-\d.]+)'", attributes).group(1))
+        east_m = (lon - first_lon) * 111_320.0 * math.cos(math.radians(lat))
+        tag = f"<tag k='ele' v='{offset_m + SLOPE * east_m:.4f}'/>"
+        return f"<node {attributes}>{tag}" + ("</node>" if closed else "")
+
+    raised = re.sub(r"<node ([^>]*?)\s*(/?)>", with_ele, text)
+    assert raised.count("k='ele'") == text.count("<node")
+    path = tmp_path / "raised.osm"
+    path.write_text(raised)
+    summary = pipeline.import_source(tmp_path / "data", "lanelet2", path)
+    plane = summary.grounds[summary.maps[0]]
+    assert plane.source == "lanes" and plane.slope_x == pytest.approx(SLOPE, abs=0.005)
+    intersection_map = store.read_map(tmp_path / "data", summary.maps[0])
+    lane_z = np.concatenate([lane.centerline_m[:, 2] for lane in intersection_map.lanes])
+    assert np.abs(lane_z).max() < 0.05
