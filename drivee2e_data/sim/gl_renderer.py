@@ -121,7 +121,7 @@ def by_material_group(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32
     starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
     ranges = tuple(
         (int(group), 3 * int(start), 3 * int(count))
-        for group, start, count in zip(in_order, starts, counts, strict=False)
+        for group, start, count in zip(in_order, starts, counts, strict=True)
     )
     return np.ascontiguousarray(triangles[order].reshape(-1, FLOATS_PER_VERTEX)), ranges
 
@@ -336,9 +336,15 @@ class GLRenderer:
         self.lit = None
 
     def _apply_look(
-        self, program, look: ShaderLook, camera_position: NDArray[np.float64], far_m: float
+        self,
+        programs: Sequence,
+        look: ShaderLook,
+        camera_position: NDArray[np.float64],
+        far_m: float,
+        matrices: Mapping[str, NDArray[np.float64]],
     ) -> None:
-        """`look`'s uniforms into the scene `program` and the sky's."""
+        """`look`'s uniforms and the view's `matrices` (name: 4x4) into each scene program of
+        the draw (one per material group), the look's into the sky's too."""
         values = {
             "light_direction": look.light_direction, "sun_rgb": look.sun_rgb,
             "zenith_rgb": look.zenith_rgb, "horizon_rgb": look.horizon_rgb,
@@ -349,23 +355,25 @@ class GLRenderer:
             "spot_reach_m": look.spot_reach_m, "far_m": far_m,
             "camera_position": tuple(float(v) for v in camera_position),
         }  # fmt: skip
-        for target in (program, self.sky_program):
-            for name, value in values.items():
-                _set(target, name, value)
+        for name, value in values.items():
+            _set(self.sky_program, name, value)
         if look.lamps_on:
             raster = self._lamp_raster()
             extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
-            _set(program, "lamp_origin", raster.origin_xy_m)
-            _set(program, "lamp_extent", tuple(float(v) for v in extent))
+            values["lamp_origin"] = raster.origin_xy_m
+            values["lamp_extent"] = tuple(float(v) for v in extent)
         if self.wear is not None:
             cells = np.array(self.wear.values.shape[1::-1], np.float64) * self.wear.cell_m
-            _set(program, "wear_origin", self.wear.origin_xy_m)
-            _set(program, "wear_extent", tuple(float(v) for v in cells))
+            values["wear_origin"] = self.wear.origin_xy_m
+            values["wear_extent"] = tuple(float(v) for v in cells)
         else:
-            _set(program, "wear_extent", (1.0, 1.0))
-        _set(program, "shadow_map", 0)
-        _set(program, "wear_map", 1)
-        _set(program, "lamp_map", 2)
+            values["wear_extent"] = (1.0, 1.0)
+        values.update(shadow_map=0, wear_map=1, lamp_map=2)
+        for program in programs:
+            for name, value in values.items():
+                _set(program, name, value)
+            for name, matrix in matrices.items():
+                _set_matrix(program, name, matrix)
 
     def _lamp_raster(self) -> LampRaster:
         """The street lamps' light (`conditions.lamp_raster`), made on the first draw that needs
@@ -564,11 +572,9 @@ class GLRenderer:
                 if shader_look.lamps_on:
                     self._light_texture(shader_look)
                 groups = {group for group, _, _ in (*self.dynamic_groups, *self.static_groups)}
-                for group in sorted(groups):
-                    program = self._scene_program(group_defines(group, variant))
-                    self._apply_look(program, shader_look, camera_position, far_m)
-                    program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                    _set_matrix(program, "shadow_matrix", sun_matrix)
+                programs = [self._scene_program(group_defines(g, variant)) for g in sorted(groups)]
+                self._apply_look(programs, shader_look, camera_position, far_m,
+                                 {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
                 rotation_only = view_matrix.copy()
                 rotation_only[:3, 3] = 0.0
                 inverse = np.linalg.inv(projection_matrix @ rotation_only)
