@@ -68,10 +68,11 @@ def route_centreline(intersection_map: IntersectionMap, route_lane_ids: Sequence
 
 
 def route_stops(
-    intersection_map: IntersectionMap, route_lane_ids: Sequence[str]
+    intersection_map: IntersectionMap, route_lane_ids: Sequence[str], path=None
 ) -> tuple[RouteStop, ...]:
-    """The route's signal-controlled stop lines, nearest the route's start first."""
-    path = route_centreline(intersection_map, route_lane_ids)
+    """The route's signal-controlled stop lines, nearest the route's start first (`path`: the
+    route's centreline where the caller has made it, `route_centreline`)."""
+    path = route_centreline(intersection_map, route_lane_ids) if path is None else path
     if path is None:
         return ()
     lanes = list(intersection_map.lanes)
@@ -89,26 +90,20 @@ def route_stops(
         meeting = path.intersection(line)
         if meeting.is_empty:  # a line that stops short of the centreline: its nearest point
             meeting = shapely.Point(shapely.shortest_line(path, line).coords[0])
-        along = min(path.project(point) for point in _points(meeting))
-        stops.append(RouteStop(stop.stop_line_id, float(along), signals))
+        along = shapely.line_locate_point(path, shapely.points(shapely.get_coordinates(meeting)))
+        stops.append(RouteStop(stop.stop_line_id, float(along.min()), signals))
     return tuple(sorted(stops, key=lambda s: (s.along_m, s.stop_line_id)))
 
 
-def _points(geometry) -> list:
-    if isinstance(geometry, shapely.Point):
-        return [geometry]
-    if hasattr(geometry, "geoms"):
-        return [p for part in geometry.geoms for p in _points(part)]
-    return [shapely.Point(xy) for xy in geometry.coords]
-
-
 def front_bumper(
-    xy_m: NDArray[np.float64], yaw_rad: NDArray[np.float64], length_m: float
+    xy_m: NDArray[np.float64], yaw_rad: NDArray[np.float64], length_m: float | NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """`(F, 2)` the middle of the front of a box of `length_m` at `xy_m` `(F, 2)`, `yaw_rad` `(F,)`."""
+    """`(F, 2)` the middle of the front of a box `length_m` long (one length, or one a frame
+    `(F,)`) centred at `xy_m` `(F, 2)`, heading `yaw_rad` `(F,)`."""
     yaw = np.asarray(yaw_rad, np.float64)
     direction = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
-    return np.asarray(xy_m, np.float64).reshape(-1, 2) + 0.5 * length_m * direction
+    length = np.asarray(length_m, np.float64).reshape(-1, 1)
+    return np.asarray(xy_m, np.float64).reshape(-1, 2) + 0.5 * length * direction
 
 
 def binding_signals(
@@ -119,11 +114,11 @@ def binding_signals(
     """Per frame, the signal that binds an ego whose front bumper is at `front_xy_m` `(F, 2)`:
     the first holder of the first route stop still ahead; None where none is ahead (passed the
     last, or a route with no signal-controlled stop line)."""
-    stops = route_stops(intersection_map, route_lane_ids)
+    path = route_centreline(intersection_map, route_lane_ids)
+    stops = route_stops(intersection_map, route_lane_ids, path)
     front = np.asarray(front_xy_m, np.float64).reshape(-1, 2)
     if not stops:
         return [None] * len(front)
-    path = route_centreline(intersection_map, route_lane_ids)
     along = shapely.line_locate_point(path, shapely.points(front))
     result: list[str | None] = []
     for position in along:

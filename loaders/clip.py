@@ -152,9 +152,11 @@ def _ego_lights(messages: list, route_lane_ids: list[str]) -> NDArray[np.int64]:
     result = np.full(len(messages), none, np.int64)
     per_frame = bool(messages) and "ego_signal_id" in messages[0].DESCRIPTOR.fields_by_name
     for row, message in enumerate(messages):
-        states = {light.signal_id: light.state for light in message.lights}
         if per_frame:
-            state = states.get(message.ego_signal_id) if message.ego_signal_id else None
+            bound = message.ego_signal_id
+            state = next(
+                (light.state for light in message.lights if light.signal_id == bound), None
+            )
         else:
             controlling = {
                 lane: light.state for light in message.lights for lane in light.controlled_lane_ids

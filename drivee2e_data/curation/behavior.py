@@ -22,6 +22,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
+from drivee2e_data.binding import front_bumper
 from drivee2e_data.geometry import wrap_angle
 from drivee2e_data.hdmap import IntersectionMap, StopLine, TurnDirection
 from drivee2e_data.scenario import AgentClass, Scenario, SignalState, SubScenario, Track
@@ -140,8 +141,7 @@ def _stop_line_and_signal(
 
 
 def _front(ego: Track) -> NDArray:
-    direction = np.stack([np.cos(ego.yaw_rad), np.sin(ego.yaw_rad)], -1)
-    return ego.xy_m + 0.5 * ego.length_m[:, None] * direction
+    return front_bumper(ego.xy_m, ego.yaw_rad, ego.length_m)
 
 
 def _crossing_frame(ego: Track, stop_line: StopLine) -> int | None:
