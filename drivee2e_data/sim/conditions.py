@@ -234,7 +234,7 @@ STREET_LAMP_REACH_M = 14.0
 STREET_LAMP_GAIN = 1.25  # light on the ground right under a lamp, against the noon sun's ~0.6
 LAMP_RASTER_M = 0.5  # the lamps' light varies over metres: a coarse raster is enough
 HEADLIGHT_RGB = (1.1, 1.05, 0.95)
-HEADLIGHT_REACH_M = 45.0
+BEAM_REACH_M = 45.0  # the shader's headlight beams (the CPU path's cone: HEADLIGHT_REACH_M)
 LAMPS_ON_BELOW_RAD = math.radians(3.0)  # street lamps switch on when the sun sinks below this
 HEADLIGHTS_BELOW_RAD = math.radians(10.0)  # drivers turn headlights on at dusk
 
@@ -260,7 +260,7 @@ class ShaderLook:
     headlights: bool  # vehicles' head and tail lamps glow (dusk, night, fog)
     lamp_rgb: tuple[float, float, float] = STREET_LAMP_RGB
     spot_rgb: tuple[float, float, float] = HEADLIGHT_RGB
-    spot_reach_m: float = HEADLIGHT_REACH_M
+    spot_reach_m: float = BEAM_REACH_M
 
     def plain(self) -> ShaderLook:
         """The same sun without weather or night: the top view's look (a map to read)."""
@@ -358,7 +358,7 @@ HEADLIGHT_CONE_COS = (0.82, 0.95)  # the beam: full inside 18 degrees, none beyo
 def headlight_raster(
     spots: Sequence[tuple[Sequence[float], Sequence[float]]],
     like: LampRaster,
-    reach_m: float = HEADLIGHT_REACH_M,
+    reach_m: float = BEAM_REACH_M,
 ) -> NDArray[np.float32]:
     """Light on level ground (z = 0) from headlights, on the cells of `like` (the lamps'
     raster), in units of the headlight colour's intensity. `spots`: (position, unit direction)

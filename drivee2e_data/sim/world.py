@@ -248,7 +248,7 @@ class World:
             ego = self.scenario.ego
             size = self.blueprints[ego.track_id].size_m if ego is not None else (4.6, 1.85, 1.45)
             spots.append(_headlight(self.ego_pose, size))
-        # the nearest first: the shaders take the first MAX_SPOTS
+        # the nearest first: the renderer lights the scene with the first MAX_SPOTS
         spots.sort(
             key=lambda spot: float(
                 np.hypot(spot[0][0] - self.ego_xy[0], spot[0][1] - self.ego_xy[1])
