@@ -1,8 +1,10 @@
 """What suits the host the collector runs on: how many worker processes, and which LiDAR.
 
 Each worker renders on one core (llvmpipe, or the CPU side of a GPU renderer) and peaks under
-1 GiB (docs/benchmarks.md), so the workers are the usable cores, no more than the clips and no
-more than the memory allows at `WORKER_MEMORY_GIB` each. Where an OpenGL renderer works (the GL
+1 GiB (docs/benchmarks.md), so the workers are the usable cores, no more than the units of work
+the frames make (`collect.segments`: a clip is cut into segments, so a few long clips still
+keep every core busy) and no more than the memory allows at `WORKER_MEMORY_GIB` each. On a host
+with several GPUs the workers' GL contexts are spread over them round robin (`gpus`). Where an OpenGL renderer works (the GL
 renderer or pybullet's EGL plugin, on a GPU or on Mesa's llvmpipe), the LiDAR is read from depth
 images (several times faster a sweep than ray casting, docs/benchmarks.md); with TinyRenderer,
 ray casting.
@@ -14,6 +16,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivee2e_data.collect.segments import MIN_SEGMENT_FRAMES
 from drivee2e_data.sim.world import resolve_renderer
 
 RENDERER_NAMES = {"gl": "GL renderer", "egl": "pybullet EGL", "tiny": "TinyRenderer"}
@@ -28,9 +31,12 @@ class HostPlan:
     memory_gib: float
     gpu: bool
     renderer: str  # "gl", "egl" or "tiny": what "auto" resolved to here
+    gpus: int = 0  # EGL GPU devices the GL renderer's workers share round robin
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
+        if self.gpus > 1:
+            device = f"{self.gpus} GPUs"
         renderer = RENDERER_NAMES[self.renderer]
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
@@ -56,20 +62,24 @@ def nvidia_gpu() -> bool:
 
 
 def plan(
-    clips: int,
+    frames: int,
     cores: int | None = None,
     memory: float | None = None,
     gpu: bool | None = None,
     renderer: str = "auto",
+    gpus: int = 0,
 ) -> HostPlan:
-    """Workers and LiDAR for collecting `clips` clips here with `renderer` (the measurements may
-    be given; "auto" is resolved by trying the renderers, `sim.world.resolve_renderer`). Camera
-    images are finished on the CPU wherever: on an H100 host, 16 workers finishing theirs on the
-    GPU (`--post-process cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
+    """Workers and LiDAR for collecting `frames` frames (over all clips) here with `renderer`
+    (the measurements may be given; "auto" is resolved by trying the renderers,
+    `sim.world.resolve_renderer`). Every worker does its own CPU work (LiDAR, boxes, JPEG), so
+    the GPUs (`gpus`, those the workers share) do not add workers. Camera images are finished on
+    the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU (`--post-process
+    cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
     renderer = resolve_renderer(renderer)
-    workers = max(1, min(cores, max(clips, 1), int(memory // WORKER_MEMORY_GIB)))
+    units = max(1, frames // MIN_SEGMENT_FRAMES)
+    workers = max(1, min(cores, units, int(memory // WORKER_MEMORY_GIB)))
     lidar = "raycast" if renderer == "tiny" else "depth"
-    return HostPlan(workers, lidar, cores, memory, gpu, renderer)
+    return HostPlan(workers, lidar, cores, memory, gpu, renderer, gpus if renderer == "gl" else 0)

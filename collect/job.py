@@ -22,7 +22,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
-from drivee2e_data.sensors.suite import STAGES, SensorSuite, SuiteOptions
+from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, SuiteOptions
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
@@ -110,6 +110,60 @@ def label_metadata(suite: SensorSuite, options: CollectOptions) -> dict[str, str
     }
 
 
+@dataclass
+class ClipSetup:
+    """A clip's world and rig, ready to capture, and what its log's records say of them."""
+
+    world: World
+    suite: SensorSuite
+    collection: dict[str, str]  # the log's drivee2e.collection record
+    labels: dict[str, str] | None  # the log's drivee2e.camera_labels record
+
+
+def open_clip(root: Path, scenario_id: str, options: CollectOptions) -> ClipSetup:
+    """This process's world for the clip (its twin kept when the map is the same) and the rig."""
+    world = _world_for(Path(root), scenario_id, options.renderer, options.post_process)
+    suite = SensorSuite(world, options.suite())
+    collection = {
+        "renderer": world.renderer,
+        "look": str(world.look_version),
+        "jpeg_quality": str(options.jpeg_quality),
+        "cameras": ",".join(c.name for c in suite.rig.cameras),
+        "lidar": options.lidar,
+        "post_process": options.post_process,
+    }
+    labels = label_metadata(suite, options) if options.camera_labels else None
+    return ClipSetup(world, suite, collection, labels)
+
+
+def planned_frames(num_frames: int, options: CollectOptions) -> int:
+    """How many of a clip's frames are collected: all, or the first `max_frames`."""
+    return num_frames if options.max_frames is None else min(num_frames, options.max_frames)
+
+
+def capture_frames(
+    setup: ClipSetup,
+    frames: range,
+    stage_seconds: dict[str, float],
+    encode: Callable[[SensorFrame], None],
+    on_frame: Callable[[int], None] | None = None,
+) -> int:
+    """Capture `frames` in order, handing each to `encode` (timed as the write stage); returns
+    how many were captured."""
+    count = 0
+    for frame in frames:
+        captured = setup.suite.capture(frame)
+        for stage, seconds in captured.seconds.items():
+            stage_seconds[stage] += seconds
+        tick = time.perf_counter()
+        encode(captured)
+        stage_seconds["write"] += time.perf_counter() - tick
+        count += 1
+        if on_frame is not None:
+            on_frame(1)
+    return count
+
+
 def collect_clip(
     root: Path,
     scenario_id: str,
@@ -120,47 +174,42 @@ def collect_clip(
     path = log_path(root, scenario_id)
     if path.exists():
         return JobResult(scenario_id, "skipped", log_bytes=path.stat().st_size)
-    start = time.perf_counter()
-    stage_seconds = dict.fromkeys((*STAGES, "write"), 0.0)
-    result = JobResult(scenario_id, "failed", stage_seconds=stage_seconds)
-    try:
-        world = _world_for(Path(root), scenario_id, options.renderer, options.post_process)
-        result.renderer = world.renderer
-        suite = SensorSuite(world, options.suite())
-        scenario = world.scenario
-        frames = range(scenario.num_frames)
-        if options.max_frames is not None:
-            frames = range(min(options.max_frames, scenario.num_frames))
-        collection = {
-            "renderer": world.renderer,
-            "look": str(world.look_version),
-            "jpeg_quality": str(options.jpeg_quality),
-            "cameras": ",".join(c.name for c in suite.rig.cameras),
-            "lidar": options.lidar,
-            "post_process": options.post_process,
-        }
-        labels = None
-        if options.camera_labels:
-            labels = label_metadata(suite, options)
+
+    def work(result: JobResult) -> None:
+        setup = open_clip(root, scenario_id, options)
+        result.renderer = setup.world.renderer
+        scenario = setup.world.scenario
+        frames = range(planned_frames(scenario.num_frames, options))
         with LogWriter(
-            path, scenario, world.intersection_map, suite.rig, suite.motion, collection, labels
+            path,
+            scenario,
+            setup.world.intersection_map,
+            setup.suite.rig,
+            setup.suite.motion,
+            setup.collection,
+            setup.labels,
         ) as writer:
-            for frame in frames:
-                captured = suite.capture(frame)
-                for stage, seconds in captured.seconds.items():
-                    stage_seconds[stage] += seconds
-                tick = time.perf_counter()
-                writer.write(captured)
-                stage_seconds["write"] += time.perf_counter() - tick
-                result.frames += 1
-                if on_frame is not None:
-                    on_frame(1)
+            result.frames = capture_frames(
+                setup, frames, result.stage_seconds, writer.write, on_frame
+            )
         result.status = "collected"
         result.log_bytes = path.stat().st_size
+
+    return run_job(scenario_id, work)
+
+
+def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
+    """Run `work` on a fresh result, timed; a bad clip or a bug becomes the result's error (with
+    where a bug happened) instead of an exception, so one clip cannot stop the others."""
+    start = time.perf_counter()
+    result = JobResult(scenario_id, "failed", stage_seconds=dict.fromkeys((*STAGES, "write"), 0.0))
+    try:
+        work(result)
     except (DriveE2EError, ValueError, KeyError, OSError) as error:
-        result.error = f"{type(error).__name__}: {error}"
+        result.status, result.error = "failed", f"{type(error).__name__}: {error}"
     except Exception as error:  # a bug must not stop the other clips; keep where it happened
         where = traceback.extract_tb(error.__traceback__)[-1]
+        result.status = "failed"
         result.error = (
             f"{type(error).__name__}: {error} ({Path(where.filename).name}:{where.lineno})"
         )

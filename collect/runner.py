@@ -15,7 +15,13 @@ import queue
 import signal
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -26,12 +32,22 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from drivee2e_data import store
-from drivee2e_data.collect.job import LOGS_FOLDER, CollectOptions, JobResult, collect_clip, log_path
+from drivee2e_data.collect import segments
+from drivee2e_data.collect.job import (
+    LOGS_FOLDER,
+    CollectOptions,
+    JobResult,
+    collect_clip,
+    log_path,
+    planned_frames,
+)
+from drivee2e_data.collect.segments import WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
 from drivee2e_data.processes import stop_pool
 from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.sim import egl_devices
 
 BACKENDS = ("local", "ray")
 INDEX_NAME = "index.parquet"
@@ -79,12 +95,111 @@ def _without_ego(root: Path, scenario_id: str) -> bool:
         return False
 
 
-def _planned_frames(root: Path, scenario_id: str, options: CollectOptions) -> int:
+def _planned_frames(root: Path, scenario_id: str, options: CollectOptions) -> int | None:
     try:
         _, frames = store.read_timeline(root, scenario_id)  # meta.json only: the job reads the rest
     except DriveE2EError:
-        return 0  # its job fails with the reason; the other clips go ahead
-    return frames if options.max_frames is None else min(frames, options.max_frames)
+        return None  # its job fails with the reason; the other clips go ahead
+    return planned_frames(frames, options)
+
+
+def _plan(
+    root: Path, scenario_ids: list[str], options: CollectOptions, workers: int
+) -> tuple[list[WorkUnit], dict[str, int]]:
+    """The units of work for these clips (see `segments.plan_units`), and each clip's frames.
+    Segment files a crashed run finished are kept and only the frames they lack are planned;
+    a clip whose bundle cannot be read gets one whole unit, whose job reports why."""
+    segments.remove_temporary(root)
+    clip_frames, covered, unreadable = {}, {}, []
+    for scenario_id in scenario_ids:
+        frames = _planned_frames(root, scenario_id, options)
+        if frames is None:
+            unreadable.append(WorkUnit(scenario_id, 0, 0, whole=True))
+            continue
+        clip_frames[scenario_id] = frames
+        kept = []
+        for path in segments.finished_segments(root, scenario_id, options):
+            start, stop = segments.segment_range(path)
+            if stop > frames or any(start < b and a < stop for a, b in kept):
+                path.unlink()  # made for a longer --max-frames, or overlapping: redone
+            else:
+                kept.append((start, stop))
+        covered[scenario_id] = kept
+    return [*segments.plan_units(clip_frames, covered, workers), *unreadable], clip_frames
+
+
+def run_unit(
+    root: Path,
+    unit: WorkUnit,
+    options: CollectOptions,
+    on_frame: Callable[[int], None] | None = None,
+) -> JobResult:
+    """A whole clip into its log, or a segment into its segment file."""
+    if unit.whole:
+        return collect_clip(root, unit.scenario_id, options, on_frame)
+    return segments.collect_segment(root, unit, options, on_frame)
+
+
+class _ClipTracker:
+    """Gathers units' results into one result per clip and writes a clip's log from its
+    segments once they are all there (`segments.merge_clip`)."""
+
+    def __init__(
+        self,
+        root: Path,
+        options: CollectOptions,
+        units: list[WorkUnit],
+        clip_frames: dict[str, int],
+    ) -> None:
+        self.root, self.options, self.clip_frames = root, options, clip_frames
+        self.waiting: dict[str, int] = {}
+        for unit in units:
+            self.waiting[unit.scenario_id] = self.waiting.get(unit.scenario_id, 0) + 1
+        self.clips: dict[str, JobResult] = {}
+
+    def finished(self, unit: WorkUnit, result: JobResult) -> str | None:
+        """Count in a unit's result; returns the clip's id when its segments are all done and
+        its log is to be written (`merge`)."""
+        clip = self.clips.get(unit.scenario_id)
+        if clip is None:
+            clip = self.clips[unit.scenario_id] = JobResult(
+                unit.scenario_id,
+                result.status,
+                stage_seconds=dict.fromkeys(result.stage_seconds, 0.0),
+            )
+        _add(clip, result)
+        if result.status == "failed" and clip.error is None:
+            where = "" if unit.whole else f"frames {unit.start}-{unit.stop - 1}: "
+            clip.status, clip.error = "failed", f"{where}{result.error}"
+        self.waiting[unit.scenario_id] -= 1
+        if self.waiting[unit.scenario_id] or unit.whole or clip.status == "failed":
+            return None
+        return unit.scenario_id
+
+    def merge(self, scenario_id: str) -> None:
+        """Write the clip's log from its segments (in this process)."""
+        result = segments.merge_clip(
+            self.root, scenario_id, self.options, self.clip_frames[scenario_id]
+        )
+        clip = self.clips[scenario_id]
+        clip.stage_seconds["write"] = clip.stage_seconds.get("write", 0.0) + result.seconds
+        clip.seconds += result.seconds
+        clip.log_bytes = result.log_bytes
+        if result.status == "failed":
+            clip.status, clip.error = "failed", result.error
+
+    def results(self) -> list[JobResult]:
+        return list(self.clips.values())
+
+
+def _add(total: JobResult, part: JobResult) -> None:
+    total.frames += part.frames
+    total.seconds += part.seconds
+    total.log_bytes = max(total.log_bytes, part.log_bytes)
+    total.peak_rss_bytes = max(total.peak_rss_bytes, part.peak_rss_bytes)
+    total.renderer = total.renderer or part.renderer
+    for stage, seconds in part.stage_seconds.items():
+        total.stage_seconds[stage] = total.stage_seconds.get(stage, 0.0) + seconds
 
 
 def collect(
@@ -94,10 +209,13 @@ def collect(
     backend: str = "local",
     only: list[str] | None = None,
     progress: Callable[[int, int], Callable[[int], None]] | None = None,
+    gpus: tuple[int, ...] = (),
 ) -> CollectSummary:
     """Collect every clip under `root` (or those in `only`) that has no log yet.
 
     `progress(total_frames, clips)` may return a callable that is told of finished frames.
+    `gpus`: EGL devices the workers' GL contexts are made on, round robin (() for the default
+    device; `sim.egl_devices`).
     """
     root = Path(root)
     if backend not in BACKENDS:
@@ -126,19 +244,31 @@ def collect(
                 summary.results.append(JobResult(scenario_id, "no ego"))
             else:
                 pending.append(scenario_id)
-        total = sum(_planned_frames(root, s, options) for s in pending)
+        units, clip_frames = _plan(root, pending, options, workers)
+        total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
+        tracker = _ClipTracker(root, options, units, clip_frames)
         try:
             if backend == "ray":
-                summary.results.extend(_run_ray(root, pending, options, tick))
+                _run_ray(root, units, options, tracker, tick, gpus)
             elif workers <= 1:
-                summary.results.extend(collect_clip(root, s, options, tick) for s in pending)
+                for unit in units:
+                    merge = tracker.finished(unit, run_unit(root, unit, options, tick))
+                    if merge is not None:
+                        tracker.merge(merge)
             else:
-                summary.results.extend(_run_pool(root, pending, options, workers, tick))
+                workers = min(workers, len(units))  # no idle workers
+                _run_pool(root, units, options, workers, tracker, tick, gpus)
+            summary.results.extend(tracker.results())
         except KeyboardInterrupt:
             for partial in logs.glob(f".*{PARTIAL_SUFFIX}"):
                 partial.unlink()  # stopped workers' unfinished logs; finished ones stay
+            segments.remove_temporary(root)  # finished segments stay: a rerun resumes them
             raise
+        try:
+            (logs / segments.SEGMENTS_FOLDER).rmdir()  # every clip's segments merged
+        except OSError:
+            pass  # none was made, or a failed clip's segments stay for the rerun
         summary.wall_seconds = time.perf_counter() - start
         summary.index_rows = write_index(root)
     order = {s: i for i, s in enumerate(scenario_ids)}
@@ -167,9 +297,12 @@ _frames_done: multiprocessing.Queue | None = None
 WORKER_ENVIRONMENT = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
-def _init_worker(frames_done: multiprocessing.Queue) -> None:
+def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[int, ...]) -> None:
     global _frames_done
     _frames_done = frames_done
+    with started.get_lock():  # this worker's number, for its GPU
+        worker, started.value = started.value, started.value + 1
+    egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
     for name, value in WORKER_ENVIRONMENT.items():
         os.environ.setdefault(name, value)
     import cv2  # torch, where the GPU post-processing imports it, reads OMP_NUM_THREADS
@@ -178,46 +311,60 @@ def _init_worker(frames_done: multiprocessing.Queue) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
 
 
-def _pooled_clip(root: Path, scenario_id: str, options: CollectOptions) -> JobResult:
+def _pooled_unit(root: Path, unit: WorkUnit, options: CollectOptions) -> JobResult:
     frames_done = _frames_done
-    return collect_clip(root, scenario_id, options, frames_done.put if frames_done else None)
+    return run_unit(root, unit, options, frames_done.put if frames_done else None)
 
 
 def _run_pool(
     root: Path,
-    scenario_ids: list[str],
+    units: list[WorkUnit],
     options: CollectOptions,
     workers: int,
+    tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
-) -> list[JobResult]:
+    gpus: tuple[int, ...] = (),
+) -> None:
+    """Units on a pool of worker processes, longest first; a clip's log is written from its
+    segments by a thread of this process while the workers go on."""
     # spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
     context = multiprocessing.get_context("spawn")
     frames_done = context.Queue()
-    results: list[JobResult] = []
+    started = context.Value("i", 0)
     pool = ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(frames_done,)
+        max_workers=workers,
+        mp_context=context,
+        initializer=_init_worker,
+        initargs=(frames_done, started, gpus),
     )
+    writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="merge")
+    merges: list[Future] = []
     try:
-        futures: dict[Future, str] = {
-            pool.submit(_pooled_clip, root, s, options): s for s in scenario_ids
+        futures: dict[Future, WorkUnit] = {
+            pool.submit(_pooled_unit, root, u, options): u for u in units
         }
         remaining = set(futures)
         while remaining:
             done, remaining = wait(remaining, timeout=0.25, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
             for future in done:
+                unit = futures[future]
                 try:
-                    results.append(future.result())
+                    result = future.result()
                 except BrokenProcessPool:
-                    results.append(
-                        JobResult(futures[future], "failed", error="the worker process died")
-                    )
+                    result = JobResult(unit.scenario_id, "failed", error="the worker process died")
+                merge = tracker.finished(unit, result)
+                if merge is not None:
+                    merges.append(writer.submit(tracker.merge, merge))
         _drain(frames_done, tick)
+        for merge_future in merges:
+            merge_future.result()
     except BaseException:
+        writer.shutdown(wait=True, cancel_futures=True)
         stop_pool(pool)
         raise
+    writer.shutdown()
     pool.shutdown()
-    return results
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:
@@ -233,47 +380,60 @@ def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | Non
 
 def _run_ray(
     root: Path,
-    scenario_ids: list[str],
+    units: list[WorkUnit],
     options: CollectOptions,
+    tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
-) -> list[JobResult]:
+    gpus: tuple[int, ...] = (),
+) -> None:
     try:
         import ray
     except ImportError:
         raise DriveE2EError("--backend ray needs Ray: pip install 'drivee2e-data[ray]'") from None
     # joins the cluster named by RAY_ADDRESS, or starts a local one
     ray.init(ignore_reinit_error=True, log_to_driver=False)
-    remote_clip = ray.remote(num_cpus=1)(collect_clip).options(
+    remote_unit = ray.remote(num_cpus=1)(_ray_unit).options(
         runtime_env={"env_vars": WORKER_ENVIRONMENT}
     )
-    pending = {remote_clip.remote(root, s, options): s for s in scenario_ids}
-    results: list[JobResult] = []
+    pending = {remote_unit.remote(root, u, options, gpus): u for u in units}
     try:
-        _gather_ray(ray, pending, results, tick)
+        _gather_ray(ray, pending, tracker, tick)
     except KeyboardInterrupt:
         for reference in pending:
             ray.cancel(reference, force=True)
         raise
-    return results
+
+
+def _ray_unit(
+    root: Path, unit: WorkUnit, options: CollectOptions, gpus: tuple[int, ...]
+) -> JobResult:
+    """A unit in a Ray worker process: its GL context on a GPU chosen by the process id (Ray
+    numbers no workers; the context is made once, at the process's first render)."""
+    egl_devices.use_device(egl_devices.device_for_worker(os.getpid(), gpus))
+    return run_unit(root, unit, options)
 
 
 def _gather_ray(
     ray: Any,
-    pending: dict[Any, str],
-    results: list[JobResult],
+    pending: dict[Any, WorkUnit],
+    tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
 ) -> None:
+    """Results as tasks finish; a clip's log is written here from its segments (the data root
+    is on storage every node and this process share)."""
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
         for reference in done:
-            scenario_id = pending.pop(reference)
+            unit = pending.pop(reference)
             try:
                 result = ray.get(reference)
             except Exception as error:  # a task lost with its node
-                result = JobResult(scenario_id, "failed", error=f"Ray task failed: {error}")
-            results.append(result)
+                result = JobResult(unit.scenario_id, "failed", error=f"Ray task failed: {error}")
             if tick is not None:
                 tick(result.frames)
+            merge = tracker.finished(unit, result)
+            if merge is not None:
+                tracker.merge(merge)
 
 
 def write_index(root: Path) -> int:

@@ -1,7 +1,21 @@
-"""Collection speed, memory and log size for the whole sensor suite at full resolution, against
-a naive reference measured in the same run.
+"""Collection speed, memory and log size for the whole sensor suite at full resolution.
 
-    python scripts/bench_collect.py [--frames 100] [--workers 2] [--reference-frames 8]
+By default, what a user runs: the real mix.
+
+    python scripts/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
+        [--gpus all|0,1] [--identical K] [--json FILE]
+
+makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day), collects it whole
+(or `--max-frames` frames a clip) the way `drivee2e collect DATA --workers auto` does (the CLI's
+own planning, `cli.collection.plan_collect`), and prints frames/s, the wall time against the
+summed work of all units divided by the workers (the straggler share), a stage table per
+condition (weather x time of day, ms a frame), the slowest condition against the clear-day clip,
+peak memory and MB of log a frame. Every log is validated; with `--identical K`, the K shortest
+clips are collected again by one worker and compared byte for byte.
+
+The single-clip mode (`--single`) is the earlier benchmark, a favourable case to show beside it:
+
+    python scripts/bench_collect.py --single [--frames 100] [--workers 2] [--reference-frames 8]
         [--camera-labels depth,semantic,instance [--label-scale 4]] [--lidar depth]
         [--post-process cuda] [--renderer auto|gl|egl|tiny] [--no-plain]
 
@@ -22,7 +36,9 @@ OpenCV post-processing) as the reference. `--reference-frames 0` skips the TinyR
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import io
 import json
 import tempfile
 import time
@@ -31,8 +47,12 @@ from pathlib import Path
 from bench_render import four_way_clip
 
 from drivee2e_data import store
-from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.cli import build_parser
+from drivee2e_data.cli import main as cli_main
+from drivee2e_data.cli.collection import plan_collect
+from drivee2e_data.collect.job import CollectOptions, log_path
 from drivee2e_data.collect.runner import CollectSummary, collect
+from drivee2e_data.logs.reader import validate
 from drivee2e_data.sensors.suite import STAGES
 from drivee2e_data.sim.world import RENDERERS
 
@@ -57,10 +77,18 @@ def stage_table(summary: CollectSummary) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--single", action="store_true", help="one clip copied per worker")
+    parser.add_argument("--clips", type=int, default=16, help="real mix: clips of synth")
+    parser.add_argument("--max-frames", type=int, default=None, help="real mix: frames a clip")
+    parser.add_argument("--gpus", default="all", help="real mix: as drivee2e collect --gpus")
     parser.add_argument(
-        "--frames", type=int, default=100, help="frames per job (clips are 150-250)"
+        "--identical", type=int, default=0,
+        help="real mix: collect the K shortest clips again with one worker, compare bytes",
+    )  # fmt: skip
+    parser.add_argument(
+        "--frames", type=int, default=100, help="single: frames per job (clips are 150-250)"
     )
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", default=None, help="real mix: auto; single: 2")
     parser.add_argument("--reference-frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
@@ -78,6 +106,10 @@ def main() -> None:
         "and --camera-labels); for comparing two versions of the code, each its own reference",
     )  # fmt: skip
     args = parser.parse_args()
+    if not args.single:
+        mix(args)
+        return
+    args.workers = int(args.workers or 2)
     kinds = tuple(k for k in args.camera_labels.split(",") if k)
     # one job per worker at least (two at least), so every worker has a clip to collect
     suffixes = [f"j{k}" for k in range(max(2, args.workers))]
@@ -175,6 +207,120 @@ def main() -> None:
                 indent=1,
             )
         )
+
+
+def mix(args: argparse.Namespace) -> None:
+    """The real mix through the CLI's planning; see the module docstring."""
+    with tempfile.TemporaryDirectory() as folder:
+        root = Path(folder) / "data"
+        with contextlib.redirect_stdout(io.StringIO()):
+            cli_main(
+                ["synth", "--out", str(root), "--clips", str(args.clips), "--seed", str(args.seed)]
+            )
+        argv = ["collect", str(root), "--workers", args.workers or "auto", "--gpus", args.gpus]
+        if args.max_frames:
+            argv += ["--max-frames", str(args.max_frames)]
+        planned = plan_collect(build_parser().parse_args(argv))
+        if planned.host is not None:
+            print(planned.host.describe())
+        start = time.perf_counter()
+        summary = collect(root, planned.options, planned.workers, gpus=planned.gpus)
+        wall = time.perf_counter() - start
+        failed = summary.of("failed")
+        if failed:
+            raise SystemExit(f"collection failed: {failed[0].scenario_id}: {failed[0].error}")
+        valid = sum(validate(log_path(root, r.scenario_id)) > 0 for r in summary.results)
+        clips = {r.scenario_id: r for r in summary.results}
+        conditions = {s: store.read_scenario(root, s, require_map=False).conditions for s in clips}
+        identical = _identical(root, Path(folder), planned.options, summary, args.identical)
+    work = sum(r.seconds for r in summary.results)
+    even = work / planned.workers
+    frames = summary.frames
+    print(
+        f"real mix: {len(clips)} clips of synth --seed {args.seed}, "
+        f"{'whole' if not args.max_frames else f'{args.max_frames} frames a clip'}; "
+        f"renderer {summary.results[0].renderer}, {planned.options.lidar} LiDAR, "
+        f"{planned.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}"
+    )
+    print(f"collected {frames / wall:6.2f} frames/s ({frames} frames in {wall:.1f} s)")
+    print(
+        f"summed work {work:.1f} s / {planned.workers} workers = {even:.1f} s; wall / that = "
+        f"{wall / even:.2f} (straggler share {100 * (1 - even / wall):.0f}% of the wall time)"
+    )
+    print(f"logs valid: {valid} of {len(clips)}")
+    if args.identical:
+        print(f"byte-identical to a one-worker run: {identical} of {args.identical} clips")
+    rows = _condition_rows(summary, conditions)
+    print("ms a frame, summed over stages of all workers, by condition:")
+    columns = (*STAGES, "write")
+    print(f"  {'weather':<9}{'time':<14}{'clips':>5}{'frames':>7}" + "".join(
+        f"{c[:8]:>9}" for c in columns) + f"{'total':>9}{'x clear':>9}")  # fmt: skip
+    clear = _clear_day(rows)
+    for (weather, time_of_day), row in sorted(rows.items(), key=lambda kv: -kv[1]["total"]):
+        ratio = row["total"] / rows[clear]["total"] if clear else float("nan")
+        print(f"  {weather:<9}{time_of_day:<14}{row['clips']:>5}{row['frames']:>7}" + "".join(
+            f"{row[c]:9.1f}" for c in columns) + f"{row['total']:9.1f}{ratio:9.2f}")  # fmt: skip
+    slowest = max(rows, key=lambda k: rows[k]["total"])
+    if clear:
+        print(
+            f"slowest condition {'/'.join(slowest)} {rows[slowest]['total']:.0f} ms a frame, "
+            f"{rows[slowest]['total'] / rows[clear]['total']:.2f}x the clear-day "
+            f"{'/'.join(clear)} {rows[clear]['total']:.0f}"
+        )
+    peak_gib = max(r.peak_rss_bytes for r in summary.results) / 2**30
+    mb = sum(r.log_bytes for r in summary.results) / frames / 1e6
+    print(f"peak memory per worker: {peak_gib:.2f} GiB; log size: {mb:.2f} MB per frame")
+    if args.json:
+        args.json.write_text(json.dumps({
+            "frames_per_second": frames / wall, "frames": frames, "wall_s": wall,
+            "summed_work_s": work, "workers": planned.workers, "gpus": list(planned.gpus),
+            "wall_over_even": wall / even, "valid_logs": valid, "clips": len(clips),
+            "identical": identical, "peak_gib_per_worker": peak_gib, "mb_per_frame": mb,
+            "conditions": {"/".join(k): v for k, v in rows.items()},
+        }, indent=1))  # fmt: skip
+
+
+def _condition_rows(summary: CollectSummary, conditions: dict) -> dict[tuple[str, str], dict]:
+    rows: dict[tuple[str, str], dict] = {}
+    for result in summary.results:
+        condition = conditions[result.scenario_id]
+        key = (condition.weather.value, condition.time_of_day.value)
+        row = rows.setdefault(key, {"clips": 0, "frames": 0, "seconds": {}})
+        row["clips"] += 1
+        row["frames"] += result.frames
+        for stage, seconds in result.stage_seconds.items():
+            row["seconds"][stage] = row["seconds"].get(stage, 0.0) + seconds
+    for row in rows.values():
+        for stage in (*STAGES, "write"):
+            row[stage] = 1000 * row["seconds"].get(stage, 0.0) / row["frames"]
+        row["total"] = sum(row[stage] for stage in (*STAGES, "write"))
+        del row["seconds"]
+    return rows
+
+
+def _clear_day(rows: dict[tuple[str, str], dict]) -> tuple[str, str] | None:
+    """The clear clip by day (noon first) the others are compared with."""
+    for time_of_day in ("noon", "afternoon", "early_morning"):
+        if ("clear", time_of_day) in rows:
+            return ("clear", time_of_day)
+    return None
+
+
+def _identical(
+    root: Path, folder: Path, options: CollectOptions, summary: CollectSummary, count: int
+) -> int:
+    """How many of the `count` shortest clips one worker collects into the same bytes."""
+    shortest = sorted(summary.results, key=lambda r: r.frames)[:count]
+    again = folder / "alone"
+    same = 0
+    for result in shortest:
+        scenario = store.read_scenario(root, result.scenario_id)
+        store.write_map(again, store.read_map(root, scenario.map_id))
+        store.write_scenario(again, scenario)
+        collect(again, options, workers=1, only=[result.scenario_id])
+        alone = log_path(again, result.scenario_id).read_bytes()
+        same += alone == log_path(root, result.scenario_id).read_bytes()
+    return same
 
 
 if __name__ == "__main__":

@@ -224,11 +224,14 @@ def test_a_pool_of_workers_writes_the_same_payloads(
 def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     synthetic_root: Path, tmp_path: Path
 ):
+    """Four 60-frame clips on two workers are cut into 30-frame segments; Ctrl-C while both
+    workers write one leaves neither unfinished segment file nor any partial log."""
     ids = store.scenario_ids(synthetic_root)[6:10]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
     process = _start_collector(root, ["--workers", "2", "--max-frames", "60"])
     logs = root / "logs"
-    _wait_until(lambda: len(list(logs.glob(".*.partial"))) == 2, process)
+    unfinished = ".segments/*/*.segment-tmp"
+    _wait_until(lambda: len(list(logs.glob(unfinished))) == 2, process)
     os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     try:
         _, err = process.communicate(timeout=30)  # not after the four queued clips
@@ -237,7 +240,7 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
             os.killpg(process.pid, signal.SIGKILL)
     assert process.returncode == 130
     assert "interrupted" in err.decode() and "rerun to resume" in err.decode()
-    assert not list(logs.glob(".*.partial"))
+    assert not list(logs.glob(".*.partial")) and not list(logs.glob(unfinished))
     assert len(list(logs.glob("*.mcap"))) < len(ids)
 
 
@@ -267,17 +270,22 @@ def test_a_broken_bundle_fails_alone(synthetic_root: Path, tmp_path: Path, capsy
     assert [p.name for p in (root / "logs").glob("*.mcap")] == [f"{ids[1]}.mcap"]
 
 
-def test_the_host_plan_fits_cores_clips_memory_and_gpu():
+def test_the_host_plan_fits_cores_frames_memory_and_gpus():
     from drivee2e_data.collect.host import plan
 
-    gpu_host = plan(clips=800, cores=16, memory=125.0, gpu=True, renderer="gl")
+    gpu_host = plan(frames=160_000, cores=16, memory=125.0, gpu=True, renderer="gl", gpus=1)
     assert (gpu_host.workers, gpu_host.lidar) == (16, "depth")
     assert "GL renderer -> 16 workers (--workers auto), depth LiDAR" in gpu_host.describe()
-    assert plan(clips=3, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 3  # per clip
-    assert plan(clips=100, cores=16, memory=6.0, gpu=False, renderer="egl").workers == 4  # 1.5 GiB
-    laptop = plan(clips=12, cores=2, memory=24.0, gpu=False, renderer="gl")
+    eight = plan(frames=160_000, cores=128, memory=560.0, gpu=True, renderer="gl", gpus=8)
+    assert eight.workers == 128 and "8 GPUs" in eight.describe()  # the GPUs add no workers
+    assert plan(frames=160_000, cores=16, memory=125.0, gpu=True, renderer="egl", gpus=8).gpus == 0
+    # one 200-frame clip is cut into 25-frame segments: 8 workers, not 1
+    assert plan(frames=200, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 8
+    assert plan(frames=75, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 3
+    assert plan(frames=9000, cores=16, memory=6.0, gpu=False, renderer="egl").workers == 4  # 1.5 GiB
+    laptop = plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="gl")
     assert (laptop.workers, laptop.lidar) == (2, "depth")  # llvmpipe: depth images faster
-    assert plan(clips=12, cores=2, memory=24.0, gpu=False, renderer="egl").lidar == "depth"
-    assert plan(clips=12, cores=2, memory=24.0, gpu=True, renderer="tiny").lidar == "raycast"
-    assert plan(clips=0, cores=2, memory=1.0, gpu=False, renderer="tiny").workers == 1
-    assert plan(clips=1, cores=2, memory=8.0, gpu=False).renderer in ("gl", "egl", "tiny")
+    assert plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="egl").lidar == "depth"
+    assert plan(frames=480, cores=2, memory=24.0, gpu=True, renderer="tiny").lidar == "raycast"
+    assert plan(frames=0, cores=2, memory=1.0, gpu=False, renderer="tiny").workers == 1
+    assert plan(frames=30, cores=2, memory=8.0, gpu=False).renderer in ("gl", "egl", "tiny")

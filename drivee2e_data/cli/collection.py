@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from tqdm import tqdm
@@ -29,6 +30,7 @@ from drivee2e_data.sensors.camera_gpu import POST_PROCESS_DEVICES
 from drivee2e_data.sensors.camera_gpu import check_device as check_post_process_device
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.suite import LIDAR_METHODS
+from drivee2e_data.sim import egl_devices
 from drivee2e_data.sim.world import RENDERERS
 
 
@@ -56,8 +58,12 @@ def add_collect(commands) -> None:  # type: ignore[no-untyped-def]
     collect.add_argument("data", type=Path, help="data root (curated: every clip needs an ego)")
     collect.add_argument(
         "--workers", type=_workers, default=1,
-        help="processes, or 'auto': the host's cores, at most one per clip and 1.5 GiB each "
-        "(default 1)",
+        help="processes, or 'auto': the host's cores, at most one per 25 frames and 1.5 GiB "
+        "each (default 1); with more than one, clips are cut into segments any worker takes",
+    )  # fmt: skip
+    collect.add_argument(
+        "--gpus", type=_gpus, default=None, metavar="all|I,J",
+        help="EGL GPU devices the workers' GL renderers share, round robin (default: all)",
     )  # fmt: skip
     collect.add_argument("--backend", choices=BACKENDS, default="local")
     collect.add_argument(
@@ -119,14 +125,47 @@ def run_view(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_collect(args: argparse.Namespace) -> int:
-    clips = len(args.only) if args.only else len(store.scenario_ids(args.data))
+def _gpus(text: str) -> tuple[int, ...] | None:
+    try:
+        return egl_devices.parse_gpus(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _chosen_gpus(wanted: tuple[int, ...] | None) -> tuple[int, ...]:
+    """The EGL GPU devices to spread the workers over: all found, or those asked for (each
+    must be one)."""
+    found = egl_devices.gpu_devices()
+    if wanted is None:
+        return found
+    missing = [d for d in wanted if d not in found]
+    if missing:
+        have = ", ".join(map(str, found)) or "none"
+        raise DriveE2EError(f"--gpus: EGL device {missing[0]} is not a GPU here (GPUs: {have})")
+    return wanted
+
+
+@dataclass(frozen=True)
+class CollectPlan:
+    """What `drivee2e collect`'s arguments come to on this host."""
+
+    options: CollectOptions
+    workers: int
+    gpus: tuple[int, ...]
+    host: collect_host.HostPlan | None  # when the host chose the workers or the LiDAR
+
+
+def plan_collect(args: argparse.Namespace) -> CollectPlan:
+    """Options, workers and GPUs from `collect`'s arguments (the host's plan where asked for);
+    `scripts/bench_collect.py` runs the same."""
+    scenario_ids = args.only or store.scenario_ids(args.data)
     workers, lidar, post_process = args.workers, args.lidar, args.post_process
     check_post_process_device(post_process)  # before any clip starts
+    gpus = _chosen_gpus(args.gpus)
+    host = None
     if workers == "auto" or lidar is None:  # the host decides (an EGL probe, once)
-        host = collect_host.plan(clips, renderer=args.renderer)
-        if clips:
-            print(host.describe(), file=sys.stderr)
+        frames = sum(_clip_frames(args.data, s, args.max_frames) for s in scenario_ids)
+        host = collect_host.plan(frames, renderer=args.renderer, gpus=len(gpus))
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar
     options = CollectOptions(
@@ -140,6 +179,14 @@ def run_collect(args: argparse.Namespace) -> int:
         lidar=lidar,
         post_process=post_process,
     )
+    return CollectPlan(options, workers, gpus, host if scenario_ids else None)
+
+
+def run_collect(args: argparse.Namespace) -> int:
+    planned = plan_collect(args)
+    options, workers, gpus = planned.options, planned.workers, planned.gpus
+    if planned.host is not None:
+        print(planned.host.describe(), file=sys.stderr)
     bars: list[tqdm] = []
 
     def progress(total: int, clips: int):  # type: ignore[no-untyped-def]
@@ -148,7 +195,7 @@ def run_collect(args: argparse.Namespace) -> int:
 
     try:
         summary = collect_runner.collect(
-            args.data, options, workers, args.backend, args.only, progress
+            args.data, options, workers, args.backend, args.only, progress, gpus
         )
     finally:
         for bar in bars:
@@ -167,13 +214,24 @@ def run_collect(args: argparse.Namespace) -> int:
     )
     renderers = sorted({r.renderer for r in collected if r.renderer})
     if renderers:
+        on = f" on {len(gpus)} GPUs" if len(gpus) > 1 else ""
         print(
             f"renderer: {', '.join(renderers)}; LiDAR: {options.lidar}; camera post-processing: "
-            f"{options.post_process}; workers: {workers}"
+            f"{options.post_process}; workers: {workers}{on}"
         )
     for result in failed:
         print(f"failed: {result.scenario_id}: {result.error}", file=sys.stderr)
     return 1 if failed else 0
+
+
+def _clip_frames(root: Path, scenario_id: str, max_frames: int | None) -> int:
+    """Frames to collect of a clip, from its meta.json (0 where it cannot be read: the clip's
+    job reports why)."""
+    try:
+        frames = store.read_timeline(root, scenario_id)[1]
+    except DriveE2EError:
+        return 0
+    return frames if max_frames is None else min(frames, max_frames)
 
 
 def run_logs(args: argparse.Namespace) -> int:

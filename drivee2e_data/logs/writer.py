@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from google.protobuf import descriptor_pool, message_factory
 from mcap.well_known import MessageEncoding
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
@@ -28,6 +30,26 @@ from drivee2e_data.sensors.suite import SensorFrame
 
 CHUNK_BYTES = 4 * 1024 * 1024  # an upper bound: every frame ends its chunks (see `write`)
 PARTIAL_SUFFIX = ".partial"
+
+
+# one serialised message: (topic, protobuf full type name, bytes); FLUSH ends a chunk
+Record = tuple[str, str, bytes] | None
+FLUSH: Record = None
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    """One frame's messages as `LogWriter.encode` makes them, ready to write."""
+
+    frame: int
+    t_ns: int
+    records: tuple[Record, ...]
+
+
+def message_class(full_name: str) -> type:
+    """The protobuf class of a message type the log writes (its module is imported here)."""
+    descriptor = descriptor_pool.Default().FindMessageTypeByName(full_name)
+    return message_factory.GetMessageClass(descriptor)
 
 
 def partial_path(final: Path) -> Path:
@@ -66,6 +88,84 @@ def rig_document(rig: Rig) -> dict[str, Any]:
     }
 
 
+class FrameEncoder:
+    """Turns a clip's captured frames into their serialised messages (`encode`); holds what is
+    the same at every frame: the rig, the map's signal lanes, the ego's binding signals."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        intersection_map: IntersectionMap,
+        rig: Rig,
+        motion: EgoMotion,
+        first_frame: int = 0,
+    ) -> None:
+        self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
+        self.first_frame = first_frame
+        self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
+        # the signal binding the ego at each frame of the clip, from its logged pose and route
+        route = scenario.route.lane_ids if scenario.route is not None else ()
+        ego = scenario.ego
+        front = front_bumper(ego.xy_m, ego.yaw_rad, float(motion.size_m[0]))
+        self.binding = binding_signals(intersection_map, route, front)
+        self.sensors = {c.name: c.sensor_to_ego for c in rig.cameras}
+        self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
+        self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
+
+    def encode(self, frame: SensorFrame) -> EncodedFrame:
+        """One frame's messages, serialised, in the order they are written, with the points
+        where a chunk ends (`FLUSH`).
+
+        A frame is written as three chunks: the camera images, then the LiDAR and radar clouds,
+        then everything else. A reader that wants one kind (a training loader reading images,
+        an index reading ego states) then inflates only that chunk: the LiDAR is four fifths
+        of a frame's bytes and compresses, the JPEGs do not. Encoding needs no open file, so a
+        worker can encode frames of a clip's segment and another process write them
+        (`collect/segments.py`); the log is the same bytes either way.
+        """
+        t = frame.t_ns
+        records: list[Record] = []
+
+        def put(topic: str, message: Any) -> None:
+            records.append((topic, type(message).DESCRIPTOR.full_name, message.SerializeToString()))
+
+        for camera in self.rig.cameras:
+            put(
+                topics.image_topic(camera.name),
+                messages.compressed_image(t, camera.name, frame.jpeg[camera.name]),
+            )
+        records.append(FLUSH)
+        if frame.camera_labels:  # a chunk of their own: the loader's image reads skip them
+            for camera, images in frame.camera_labels.items():
+                for kind, png in images.items():
+                    put(topics.camera_label_topic(camera, kind), messages.png_image(t, camera, png))
+            records.append(FLUSH)
+        put(topics.LIDAR, messages.lidar_cloud(t, self.rig.lidar.name, frame.lidar))
+        for radar in self.rig.radars:
+            put(
+                topics.radar_topic(radar.name),
+                messages.radar_cloud(t, radar.name, frame.radars[radar.name]),
+            )
+        records.append(FLUSH)
+        if frame.frame == self.first_frame:
+            put(topics.MAP, messages.map_scene(t, self.intersection_map))
+        for camera in self.rig.cameras:
+            put(topics.camera_info_topic(camera.name), messages.camera_calibration(t, camera))
+        put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
+        put(topics.GNSS, messages.location_fix(t, frame, self.motion))
+        put(topics.IMU, messages.imu_message(t, frame))
+        put(topics.EGO_STATE, messages.ego_state(t, self.motion, frame.frame))
+        put(topics.OBJECTS, messages.object_annotations(t, frame))
+        put(topics.SCENE, messages.scene_boxes(t, frame))
+        put(
+            topics.TRAFFIC_LIGHTS,
+            messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
+        )
+        put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
+        records.append(FLUSH)
+        return EncodedFrame(frame.frame, int(t), tuple(records))
+
+
 class LogWriter:
     """Use as a context manager: the log appears under `path` only if the block completes."""
 
@@ -78,15 +178,10 @@ class LogWriter:
         motion: EgoMotion,
         collection: dict[str, str],
         camera_labels: dict[str, str] | None = None,
+        first_frame: int = 0,
     ) -> None:
         self.path, self.partial = path, partial_path(path)
-        self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
-        self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
-        # the signal binding the ego at each frame of the clip, from its logged pose and route
-        route = scenario.route.lane_ids if scenario.route is not None else ()
-        ego = scenario.ego
-        front = front_bumper(ego.xy_m, ego.yaw_rad, float(motion.size_m[0]))
-        self.binding = binding_signals(intersection_map, route, front)
+        self.encoder = FrameEncoder(scenario, intersection_map, rig, motion, first_frame)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
         self._writer = McapWriter(
@@ -105,73 +200,36 @@ class LogWriter:
         )
         if camera_labels:
             self._writer.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
-        self.sensors = {c.name: c.sensor_to_ego for c in rig.cameras}
-        self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
-        self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
         self.t_ns: list[int] = []  # of the frames written
-        self.first_frame = 0
+        self.first_frame = first_frame
 
     def write(self, frame: SensorFrame) -> None:
-        """All topics of one frame, each with log time and publish time = the frame's time.
+        """All topics of one frame, each with log time and publish time = the frame's time."""
+        self.write_encoded(self.encoder.encode(frame))
 
-        A frame is written as three chunks: the camera images, then the LiDAR and radar clouds,
-        then everything else. A reader that wants one kind (a training loader reading images,
-        an index reading ego states) then inflates only that chunk: the LiDAR is four fifths
-        of a frame's bytes and compresses, the JPEGs do not.
-        """
-        t = frame.t_ns
-
-        def put(topic: str, message: Any) -> None:
+    def write_encoded(self, encoded: EncodedFrame) -> None:
+        """Write a frame `encode` made (here or in another process); frames in order."""
+        expected = self.first_frame + len(self.t_ns)
+        if encoded.frame != expected:
+            raise ValueError(
+                f"{self.path}: frame {encoded.frame} written where frame {expected} was due"
+            )
+        t = encoded.t_ns
+        for record in encoded.records:
+            if record is FLUSH:
+                self._writer.flush()
+                continue
+            topic, kind, data = record
             self._writer.add_message(
-                self._channel(topic, message),
-                log_time=t,
-                data=message.SerializeToString(),
-                publish_time=t,
+                self._channel(topic, kind), log_time=t, data=data, publish_time=t
             )
+        self.t_ns.append(t)
 
-        for camera in self.rig.cameras:
-            put(
-                topics.image_topic(camera.name),
-                messages.compressed_image(t, camera.name, frame.jpeg[camera.name]),
-            )
-        self._writer.flush()
-        if frame.camera_labels:  # a chunk of their own: the loader's image reads skip them
-            for camera, images in frame.camera_labels.items():
-                for kind, png in images.items():
-                    put(topics.camera_label_topic(camera, kind), messages.png_image(t, camera, png))
-            self._writer.flush()
-        put(topics.LIDAR, messages.lidar_cloud(t, self.rig.lidar.name, frame.lidar))
-        for radar in self.rig.radars:
-            put(
-                topics.radar_topic(radar.name),
-                messages.radar_cloud(t, radar.name, frame.radars[radar.name]),
-            )
-        self._writer.flush()
-        if not self.t_ns:
-            self.first_frame = frame.frame
-            put(topics.MAP, messages.map_scene(t, self.intersection_map))
-        for camera in self.rig.cameras:
-            put(topics.camera_info_topic(camera.name), messages.camera_calibration(t, camera))
-        put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
-        put(topics.GNSS, messages.location_fix(t, frame, self.motion))
-        put(topics.IMU, messages.imu_message(t, frame))
-        put(topics.EGO_STATE, messages.ego_state(t, self.motion, frame.frame))
-        put(topics.OBJECTS, messages.object_annotations(t, frame))
-        put(topics.SCENE, messages.scene_boxes(t, frame))
-        put(
-            topics.TRAFFIC_LIGHTS,
-            messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
-        )
-        put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
-        self._writer.flush()
-        self.t_ns.append(int(t))
-
-    def _channel(self, topic: str, message: Any) -> int:
-        """The topic's channel, registered with its message's schema on first use."""
+    def _channel(self, topic: str, kind: str) -> int:
+        """The topic's channel, registered with its message type's schema on first use."""
         if topic not in self._channels:
-            kind = type(message).DESCRIPTOR.full_name
             if kind not in self._schemas:
-                self._schemas[kind] = register_schema(self._writer, type(message))
+                self._schemas[kind] = register_schema(self._writer, message_class(kind))
             self._channels[topic] = self._writer.register_channel(
                 topic=topic,
                 message_encoding=MessageEncoding.Protobuf,

@@ -1,0 +1,329 @@
+"""Work units smaller than a clip: a clip's frames cut into segments that any worker takes, each
+written as a segment file of encoded frames, and the clip's log written from its segments once
+all are there. The log is byte for byte the one a single worker writes for the clip: the same
+`LogWriter` calls in the same order (`LogWriter.encode` / `write_encoded`), and a frame's
+capture depends on nothing but the frame (`SensorSuite.capture` poses the world from the log).
+
+Segment files live in `logs/.segments/<scenario_id>/<start>-<stop>.segment`, written under a
+temporary name and renamed when whole, so a crash keeps every finished segment and a rerun
+collects only the frames no segment holds. A segment records the options it was made with; one
+made with other options is dropped.
+
+File layout: `MAGIC`, a length-prefixed JSON header (scenario, frames, options, the log's
+collection and label records), then per frame its number, time and records (topic, message
+type, bytes; a flush marker ends a chunk), then `END`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import os
+import shutil
+import struct
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO
+
+from drivee2e_data import __version__, store
+from drivee2e_data.collect.job import (
+    LOGS_FOLDER,
+    CollectOptions,
+    JobResult,
+    capture_frames,
+    log_path,
+    open_clip,
+    run_job,
+)
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.logs.writer import FLUSH, EncodedFrame, FrameEncoder, LogWriter, Record
+from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.sensors.suite import configured_rig
+
+SEGMENTS_FOLDER = ".segments"
+SUFFIX = ".segment"
+TEMPORARY_SUFFIX = ".segment-tmp"
+MAGIC, END = b"DE2ESEG1", b"END!"
+# a unit's fixed cost is setting up its clip's world (0.4-1 s, docs/benchmarks.md) against
+# 0.1-0.5 s a frame per worker: units shorter than this spend more than a tenth on set-up
+MIN_SEGMENT_FRAMES = 25
+# units per worker when a set is cut: enough that the last units to finish are short, few
+# enough that each worker sets up only a few worlds more than with whole clips
+UNITS_PER_WORKER = 4
+
+_FRAME = struct.Struct("<IqI")  # frame, t_ns, records
+_MESSAGE = struct.Struct("<BHHI")  # kind (1 message, 0 flush), topic, type, data lengths
+
+
+@dataclass(frozen=True)
+class WorkUnit:
+    """Frames `start` to `stop - 1` of a clip; `whole` when that is the whole clip and no
+    segment exists (the unit then writes the log itself)."""
+
+    scenario_id: str
+    start: int
+    stop: int
+    whole: bool = False
+
+    @property
+    def frames(self) -> int:
+        return self.stop - self.start
+
+    @property
+    def name(self) -> str:
+        return f"{self.start:06d}-{self.stop:06d}"
+
+
+def segment_length(total_frames: int, workers: int) -> int | None:
+    """Frames per unit for `total_frames` over `workers` (None: no cutting, whole clips)."""
+    if workers <= 1:
+        return None
+    return max(MIN_SEGMENT_FRAMES, math.ceil(total_frames / (workers * UNITS_PER_WORKER)))
+
+
+def plan_units(
+    clip_frames: dict[str, int],
+    covered: dict[str, list[tuple[int, int]]],
+    workers: int,
+) -> list[WorkUnit]:
+    """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
+    frame ranges in `covered` are already in segment files: every frame not covered, cut into
+    units of about `segment_length` frames, longest first (clips in the given order within a
+    length, so a worker often takes the next unit of the clip it has set up)."""
+    gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
+    length = segment_length(sum(b - a for g in gaps.values() for a, b in g), workers)
+    units = []
+    for scenario_id, ranges in gaps.items():
+        whole = ranges == [(0, clip_frames[scenario_id])]
+        for start, stop in ranges:
+            pieces = 1 if length is None else math.ceil((stop - start) / length)
+            if whole and pieces == 1:
+                units.append(WorkUnit(scenario_id, start, stop, whole=True))
+                continue
+            bounds = [start + round(k * (stop - start) / pieces) for k in range(pieces + 1)]
+            units.extend(WorkUnit(scenario_id, a, b) for a, b in itertools.pairwise(bounds))
+    return sorted(units, key=lambda u: -u.frames)  # stable: clip order kept within a length
+
+
+def uncovered(frames: int, ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The parts of `range(frames)` no range of `ranges` holds, in order."""
+    gaps, position = [], 0
+    for start, stop in sorted(ranges):
+        if start > position:
+            gaps.append((position, min(start, frames)))
+        position = max(position, stop)
+    if position < frames:
+        gaps.append((position, frames))
+    return [(a, b) for a, b in gaps if b > a]
+
+
+def fingerprint(options: CollectOptions) -> str:
+    """What a segment's frames depend on: the options (but how many frames: a frame is the same
+    whatever the clip's length collected) and the version that made them."""
+    fields = dataclasses.asdict(options)
+    fields.pop("max_frames")
+    return json.dumps({"version": __version__, **fields}, sort_keys=True, default=list)
+
+
+def segments_dir(root: Path, scenario_id: str) -> Path:
+    return Path(root) / LOGS_FOLDER / SEGMENTS_FOLDER / scenario_id
+
+
+def finished_segments(root: Path, scenario_id: str, options: CollectOptions) -> list[Path]:
+    """The clip's whole segment files made with `options`, by first frame; others (made with
+    other options, or unreadable) are deleted, since nothing can use them."""
+    folder = segments_dir(root, scenario_id)
+    if not folder.is_dir():
+        return []
+    kept = []
+    wanted = fingerprint(options)
+    for path in sorted(folder.glob(f"*{SUFFIX}")):
+        try:
+            header = read_header(path)
+        except DriveE2EError:
+            header = None
+        if header is None or header["fingerprint"] != wanted:
+            path.unlink()
+            continue
+        kept.append(path)
+    return kept
+
+
+def segment_range(path: Path) -> tuple[int, int]:
+    start, stop = path.name.removesuffix(SUFFIX).split("-")
+    return int(start), int(stop)
+
+
+def remove_temporary(root: Path) -> None:
+    """A crashed or stopped run's unfinished segment files (their frames are collected again)."""
+    for path in (Path(root) / LOGS_FOLDER / SEGMENTS_FOLDER).glob(f"*/*{TEMPORARY_SUFFIX}"):
+        path.unlink()
+
+
+# ---------------------------------------------------------------------------- the file format
+
+
+def _write_frame(stream: BinaryIO, encoded: EncodedFrame) -> None:
+    stream.write(_FRAME.pack(encoded.frame, encoded.t_ns, len(encoded.records)))
+    for record in encoded.records:
+        if record is FLUSH:
+            stream.write(_MESSAGE.pack(0, 0, 0, 0))
+            continue
+        topic, kind, data = record
+        topic_bytes, kind_bytes = topic.encode(), kind.encode()
+        stream.write(_MESSAGE.pack(1, len(topic_bytes), len(kind_bytes), len(data)))
+        stream.write(topic_bytes + kind_bytes + data)
+
+
+def _read_exactly(stream: BinaryIO, size: int, path: Path) -> bytes:
+    data = stream.read(size)
+    if len(data) != size:
+        raise DriveE2EError(f"{path}: segment file ends early (expected {size} more bytes)")
+    return data
+
+
+def _read_json(stream: BinaryIO, path: Path) -> dict:
+    (size,) = struct.unpack("<I", _read_exactly(stream, 4, path))
+    return json.loads(_read_exactly(stream, size, path))
+
+
+def _write_json(stream: BinaryIO, document: dict) -> None:
+    data = json.dumps(document).encode()  # key order kept: the log's records keep theirs
+    stream.write(struct.pack("<I", len(data)) + data)
+
+
+def read_header(path: Path) -> dict:
+    with open(path, "rb") as stream:
+        if stream.read(len(MAGIC)) != MAGIC:
+            raise DriveE2EError(f"{path}: not a drivee2e segment file")
+        return _read_json(stream, path)
+
+
+def read_frames(path: Path) -> Iterator[EncodedFrame]:
+    """The encoded frames of a segment file, in order; the file must end with its trailer."""
+    with open(path, "rb") as stream:
+        if stream.read(len(MAGIC)) != MAGIC:
+            raise DriveE2EError(f"{path}: not a drivee2e segment file")
+        header = _read_json(stream, path)
+        for _ in range(header["stop"] - header["start"]):
+            frame, t_ns, count = _FRAME.unpack(_read_exactly(stream, _FRAME.size, path))
+            records: list[Record] = []
+            for _ in range(count):
+                kind, topic_size, type_size, data_size = _MESSAGE.unpack(
+                    _read_exactly(stream, _MESSAGE.size, path)
+                )
+                if kind == 0:
+                    records.append(FLUSH)
+                    continue
+                body = _read_exactly(stream, topic_size + type_size + data_size, path)
+                topic = body[:topic_size].decode()
+                message_type = body[topic_size : topic_size + type_size].decode()
+                records.append((topic, message_type, body[topic_size + type_size :]))
+            yield EncodedFrame(frame, t_ns, tuple(records))
+        if stream.read(len(END)) != END:
+            raise DriveE2EError(f"{path}: segment file has no end marker")
+
+
+# ---------------------------------------------------------------------------- the two jobs
+
+
+def collect_segment(
+    root: Path,
+    unit: WorkUnit,
+    options: CollectOptions,
+    on_frame: Callable[[int], None] | None = None,
+) -> JobResult:
+    """Capture a unit's frames into its segment file (never raises for a bad clip: see
+    `job.run_job`)."""
+    if unit.whole:
+        raise ValueError(f"{unit.scenario_id}: a whole-clip unit writes its log directly")
+    folder = segments_dir(root, unit.scenario_id)
+
+    def work(result: JobResult) -> None:
+        setup = open_clip(root, unit.scenario_id, options)
+        result.renderer = setup.world.renderer
+        scenario = setup.world.scenario
+        encoder = FrameEncoder(
+            scenario, setup.world.intersection_map, setup.suite.rig, setup.suite.motion
+        )
+        folder.mkdir(parents=True, exist_ok=True)
+        final = folder / f"{unit.name}{SUFFIX}"
+        temporary = folder / f"{unit.name}.{os.getpid()}{TEMPORARY_SUFFIX}"
+        try:
+            with open(temporary, "wb") as stream:
+                stream.write(MAGIC)
+                _write_json(
+                    stream,
+                    {
+                        "scenario_id": unit.scenario_id,
+                        "start": unit.start,
+                        "stop": unit.stop,
+                        "fingerprint": fingerprint(options),
+                        "collection": setup.collection,
+                        "labels": setup.labels,
+                    },
+                )
+                result.frames = capture_frames(
+                    setup,
+                    range(unit.start, unit.stop),
+                    result.stage_seconds,
+                    lambda frame: _write_frame(stream, encoder.encode(frame)),
+                    on_frame,
+                )
+                stream.write(END)
+                stream.flush()
+                os.fsync(stream.fileno())
+            os.replace(temporary, final)
+        finally:
+            temporary.unlink(missing_ok=True)
+        result.status = "collected"
+
+    return run_job(unit.scenario_id, work)
+
+
+def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:
+    """Write the clip's log from its segment files (which must hold frames 0 to `frames - 1`),
+    then delete them. The result's frames are 0 (the segments' jobs counted them) and its time is
+    the writing's."""
+    root = Path(root)
+
+    def work(result: JobResult) -> None:
+        paths = finished_segments(root, scenario_id, options)
+        ranges = [segment_range(p) for p in paths]
+        gaps = uncovered(frames, ranges)
+        if gaps or sum(b - a for a, b in ranges) != frames:
+            raise DriveE2EError(
+                f"{segments_dir(root, scenario_id)}: segments {ranges} do not hold frames "
+                f"0-{frames - 1} once each"
+            )
+        headers = [read_header(p) for p in paths]
+        records = {json.dumps([h["collection"], h["labels"]], sort_keys=True) for h in headers}
+        if len(records) != 1:
+            raise DriveE2EError(
+                f"{segments_dir(root, scenario_id)}: segments made with different renderers or "
+                "rigs; delete the folder to collect the clip again"
+            )
+        scenario = store.read_scenario(root, scenario_id)
+        intersection_map = store.read_map(root, scenario.map_id)
+        path = log_path(root, scenario_id)
+        with LogWriter(
+            path,
+            scenario,
+            intersection_map,
+            configured_rig(options.suite()),
+            ego_motion(scenario),
+            headers[0]["collection"],
+            headers[0]["labels"],
+        ) as writer:
+            for segment in paths:
+                for encoded in read_frames(segment):
+                    writer.write_encoded(encoded)
+        shutil.rmtree(segments_dir(root, scenario_id))
+        result.renderer = headers[0]["collection"]["renderer"]
+        result.status = "collected"
+        result.log_bytes = path.stat().st_size
+
+    return run_job(scenario_id, work)

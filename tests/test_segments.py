@@ -1,0 +1,150 @@
+"""Work units smaller than a clip: the plan (known cuts, longest first, resume around finished
+segments), the segment file, and the log written from segments, byte for byte the one a single
+worker writes."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
+
+from drivee2e_data import store
+from drivee2e_data.cli import main
+from drivee2e_data.collect import segments
+from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.runner import collect
+from drivee2e_data.collect.segments import WorkUnit, plan_units, uncovered
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
+
+# what the CLI makes of SMALL_COLLECT on this machine (depth LiDAR where GL works)
+SMALL = CollectOptions(image_size=(160, 90), jpeg_quality=80)
+
+
+def _cli_options() -> CollectOptions:
+    from drivee2e_data.collect.host import plan
+
+    return dataclasses.replace(SMALL, lidar=plan(frames=LONG_CLIP_FRAMES).lidar)
+
+
+def test_a_set_is_cut_into_units_longest_first():
+    units = plan_units({"a": 100, "b": 30}, {}, workers=2)
+    # 130 frames over 2 workers x 4 units: 17 frames a unit, raised to the 25-frame minimum
+    assert [(u.scenario_id, u.start, u.stop) for u in units] == [
+        ("a", 0, 25), ("a", 25, 50), ("a", 50, 75), ("a", 75, 100), ("b", 0, 15), ("b", 15, 30),
+    ]  # fmt: skip
+    assert not any(u.whole for u in units)
+    # one worker: whole clips, written straight into their logs
+    assert plan_units({"a": 100, "b": 30}, {}, workers=1) == [
+        WorkUnit("a", 0, 100, whole=True),
+        WorkUnit("b", 0, 30, whole=True),
+    ]
+    # 16 workers on 1600 frames: 25 frames a unit, 64 units
+    many = plan_units({f"c{k}": 100 for k in range(16)}, {}, workers=16)
+    assert len(many) == 64 and {u.frames for u in many} == {25}
+
+
+def test_a_rerun_plans_only_the_frames_no_segment_holds():
+    assert uncovered(100, [(50, 75), (0, 25)]) == [(25, 50), (75, 100)]
+    assert uncovered(30, [(0, 30)]) == []
+    assert uncovered(30, []) == [(0, 30)]
+    units = plan_units({"a": 100, "b": 30}, {"a": [(0, 25), (50, 75)]}, workers=2)
+    assert [(u.scenario_id, u.start, u.stop, u.whole) for u in units] == [
+        ("a", 25, 50, False), ("a", 75, 100, False), ("b", 0, 15, False), ("b", 15, 30, False),
+    ]  # fmt: skip
+    # a clip partly done is never whole again, even with one worker: its log comes from segments
+    assert plan_units({"a": 100}, {"a": [(0, 25)]}, workers=1) == [WorkUnit("a", 25, 100)]
+
+
+def test_gpus_are_dealt_round_robin():
+    assert [device_for_worker(k, (0, 1)) for k in range(5)] == [0, 1, 0, 1, 0]
+    assert device_for_worker(3, ()) is None
+    assert parse_gpus("all") is None and parse_gpus("0,2") == (0, 2)
+    for bad in ("0,0", "-1", "x", ""):
+        with pytest.raises(ValueError, match="--gpus"):
+            parse_gpus(bad)
+
+
+def test_a_log_from_segments_is_byte_identical_to_one_workers(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    """The first clip, 36 frames collected alone by `collected_root`; here three segments made
+    in this process (the middle one first, as another worker might), then the log written."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    for start, stop in ((12, 24), (0, 12), (24, 36)):
+        result = segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options)
+        assert (result.status, result.frames) == ("collected", stop - start), result.error
+    folder = segments.segments_dir(root, scenario_id)
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "000000-000012.segment", "000012-000024.segment", "000024-000036.segment",
+    ]  # fmt: skip
+    merged = segments.merge_clip(root, scenario_id, options, LONG_CLIP_FRAMES)
+    assert merged.status == "collected", merged.error
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+    assert not folder.exists()  # the segments go once the log is written
+
+
+def test_a_crashed_run_resumes_from_its_finished_segments(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    """A run that died after one segment (and mid-way through another) leaves a segment file and
+    a temporary one; the rerun keeps the first, drops the second and a segment made with other
+    options, collects the rest, and writes the same log as one worker."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    assert segments.collect_segment(root, WorkUnit(scenario_id, 0, 20), options).frames == 20
+    folder = segments.segments_dir(root, scenario_id)
+    (folder / "000020-000036.4242.segment-tmp").write_bytes(b"DE2ESEG1 cut short")
+    other = dataclasses.replace(options, jpeg_quality=50)
+    assert segments.collect_segment(root, WorkUnit(scenario_id, 20, 28), other).frames == 8
+    seen: list[int] = []
+
+    def progress(total: int, clips: int):  # type: ignore[no-untyped-def]
+        seen.append(total)
+        return None
+
+    summary = collect(root, options, workers=1, progress=progress)
+    assert seen == [LONG_CLIP_FRAMES - 20]  # only the frames the kept segment lacks
+    assert [(r.status, r.frames) for r in summary.results] == [("collected", 16)]
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+    assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
+
+
+def test_segments_that_do_not_make_the_clip_are_a_clear_error(
+    synthetic_root: Path, tmp_path: Path
+):
+    scenario_id = store.scenario_ids(synthetic_root)[1]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=6)
+    assert segments.collect_segment(root, WorkUnit(scenario_id, 0, 3), options).frames == 3
+    result = segments.merge_clip(root, scenario_id, options, 6)
+    assert result.status == "failed"
+    assert "segments [(0, 3)] do not hold frames 0-5 once each" in result.error
+    assert not (root / "logs" / f"{scenario_id}.mcap").exists()
+    path = segments.segments_dir(root, scenario_id) / "000000-000003.segment"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])  # cut short: not whole
+    with pytest.raises(DriveE2EError, match="ends early|no end marker"):
+        list(segments.read_frames(path))
+    shutil.rmtree(segments.segments_dir(root, scenario_id))
+
+
+def test_a_pool_cuts_one_long_clip_across_its_workers(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    """`--workers 2` on one 36-frame clip: two 18-frame segments on two workers, one log, the
+    same bytes as the one-worker log."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    arguments = ["collect", str(root), "--max-frames", str(LONG_CLIP_FRAMES), "--workers", "2"]
+    assert main([*arguments, *SMALL_COLLECT]) == 0
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
