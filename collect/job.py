@@ -19,10 +19,11 @@ from pathlib import Path
 
 from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.logs import topics
 from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
-from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, SuiteOptions
+from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, StateFrame, SuiteOptions
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
@@ -40,6 +41,17 @@ class CollectOptions:
     lidar: str = "raycast"  # "raycast" (the reference) or "depth" (read from depth images)
     visibility: str = "depth"  # boxes' visible share from "depth" images or the body "mask"
     post_process: str = "cpu"  # camera weather, resize and JPEG on the "cpu" or with "cuda"
+    # sensors rendered and logged at this rate (10: every frame; 2: nuScenes' keyframes); the
+    # ego's pose, IMU, GNSS and the lights are logged at every 10 Hz frame whatever the rate
+    sensor_hz: int = 10
+
+    @property
+    def sensor_every(self) -> int:
+        """Sensors at every n-th frame."""
+        if self.sensor_hz not in topics.SENSOR_RATES_HZ:
+            rates = ", ".join(map(str, topics.SENSOR_RATES_HZ))
+            raise ValueError(f"sensor_hz {self.sensor_hz}: expected one of {rates}")
+        return topics.FRAME_RATE_HZ // self.sensor_hz
 
     def suite(self) -> SuiteOptions:
         return SuiteOptions(
@@ -131,6 +143,7 @@ def open_clip(root: Path, scenario_id: str, options: CollectOptions) -> ClipSetu
         "cameras": ",".join(c.name for c in suite.rig.cameras),
         "lidar": options.lidar,
         "post_process": options.post_process,
+        "sensor_hz": str(options.sensor_hz),
     }
     labels = label_metadata(suite, options) if options.camera_labels else None
     return ClipSetup(world, suite, collection, labels)
@@ -145,14 +158,19 @@ def capture_frames(
     setup: ClipSetup,
     frames: range,
     stage_seconds: dict[str, float],
-    encode: Callable[[SensorFrame], None],
+    encode: Callable[[SensorFrame | StateFrame], None],
     on_frame: Callable[[int], None] | None = None,
+    sensor_every: int = 1,
 ) -> int:
     """Capture `frames` in order, handing each to `encode` (timed as the write stage); returns
-    how many were captured."""
+    how many were captured. Frames that are no multiple of `sensor_every` get only the ego's
+    state (`SensorSuite.capture_state`)."""
     count = 0
     for frame in frames:
-        captured = setup.suite.capture(frame)
+        if frame % sensor_every:
+            captured: SensorFrame | StateFrame = setup.suite.capture_state(frame)
+        else:
+            captured = setup.suite.capture(frame)
         for stage, seconds in captured.seconds.items():
             stage_seconds[stage] += seconds
         tick = time.perf_counter()
@@ -188,9 +206,10 @@ def collect_clip(
             setup.suite.motion,
             setup.collection,
             setup.labels,
+            sensor_every=options.sensor_every,
         ) as writer:
             result.frames = capture_frames(
-                setup, frames, result.stage_seconds, writer.write, on_frame
+                setup, frames, result.stage_seconds, writer.write, on_frame, options.sensor_every
             )
         result.status = "collected"
         result.log_bytes = path.stat().st_size

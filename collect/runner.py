@@ -437,14 +437,14 @@ def _gather_ray(
 
 
 def write_index(root: Path) -> int:
-    """`logs/index.parquet`: one row per collected frame of every finished log (scenario, frame,
+    """`logs/index.parquet`: one row per sensor frame (every frame at 10 Hz) of every finished log (scenario, frame,
     t_ns, ego pose at the rear axle, speed, command, behaviour and conditions); returns rows."""
     root = Path(root)
     columns: dict[str, list] = {name: [] for name in INDEX_SCHEMA.names}
     for path in sorted((root / LOGS_FOLDER).glob("*.mcap")):
         try:
             with LogReader(path) as log:
-                frames = list(log.frames)
+                frames = list(log.sensor_frames)
         except LogFormatError:
             continue  # not ours to index; `drivee2e logs --validate` names what is wrong
         try:

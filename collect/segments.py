@@ -272,6 +272,7 @@ def collect_segment(
                     result.stage_seconds,
                     lambda frame: _write_frame(stream, encoder.encode(frame)),
                     on_frame,
+                    options.sensor_every,
                 )
                 stream.write(END)
                 stream.flush()
@@ -317,6 +318,7 @@ def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: in
             ego_motion(scenario),
             headers[0]["collection"],
             headers[0]["labels"],
+            sensor_every=options.sensor_every,
         ) as writer:
             for segment in paths:
                 for encoded in read_frames(segment):

@@ -62,9 +62,11 @@ class ClipLabels:
     ego_rear_axle_to_centre_m: float
     imu_acceleration_mps2: NDArray[np.float64]  # (F, 3) ego frame, gravity included
     imu_angular_velocity_radps: NDArray[np.float64]  # (F, 3)
-    boxes: tuple[FrameBoxes, ...]
+    # per frame; None between sensor frames (logs collected with `--sensor-hz` below 10)
+    boxes: tuple[FrameBoxes | None, ...]
     ego_light: NDArray[np.int64]  # (F,) index into LIGHT_STATES
     route_xy_m: NDArray[np.float64]  # (W, 2) route waypoints, world frame; may be empty
+    sensor_every: int = 1  # rows with sensor data and boxes: every n-th from row 0
 
     @property
     def num_frames(self) -> int:
@@ -80,11 +82,22 @@ class ClipLabels:
             )
         return row
 
+    def frame_boxes(self, row: int) -> FrameBoxes:
+        """The boxes of row `row`, which must be a sensor frame's."""
+        boxes = self.boxes[row]
+        if boxes is None:
+            raise IndexError(
+                f"clip {self.scenario_id}: frame {self.first_frame + row} has no boxes (sensors "
+                f"and boxes are at every {self.sensor_every}th frame of this log)"
+            )
+        return boxes
+
 
 def read_clip(log: LogReader) -> ClipLabels:
     """The labels of every frame of an open log."""
     count = log.num_frames
     by_topic: dict[str, list] = {topic: [None] * count for topic in _SMALL_TOPICS}
+    sensor_rows = set(range(0, count, log.sensor_every))
     row_of = {int(t): k for k, t in enumerate(log.t_ns)}
     for _, channel, message, decoded in log.decoded_messages(_SMALL_TOPICS):
         row = row_of.get(message.log_time)
@@ -95,9 +108,11 @@ def read_clip(log: LogReader) -> ClipLabels:
             )
         by_topic[channel.topic][row] = decoded
     for topic, messages in by_topic.items():
-        if any(m is None for m in messages):
-            missing = log.first_frame + messages.index(None)
-            raise LogFormatError(f"{log.path}: topic {topic} has no message at frame {missing}")
+        rows = sensor_rows if topic == topics.OBJECTS else range(count)
+        missing = [row for row in rows if messages[row] is None]
+        if missing:
+            frame = log.first_frame + missing[0]
+            raise LogFormatError(f"{log.path}: topic {topic} has no message at frame {frame}")
     states, imus = by_topic[topics.EGO_STATE], by_topic[topics.IMU]
     route = log.scenario_meta.get("route") or {}
     first = states[0]
@@ -122,9 +137,10 @@ def read_clip(log: LogReader) -> ClipLabels:
         imu_angular_velocity_radps=np.array(
             [(m.angular_velocity_x, m.angular_velocity_y, m.angular_velocity_z) for m in imus]
         ),
-        boxes=tuple(_frame_boxes(m) for m in by_topic[topics.OBJECTS]),
+        boxes=tuple(None if m is None else _frame_boxes(m) for m in by_topic[topics.OBJECTS]),
         ego_light=_ego_lights(by_topic[topics.TRAFFIC_LIGHTS], route.get("lane_ids") or []),
         route_xy_m=np.asarray(route.get("waypoints_xy_m") or np.zeros((0, 2)), np.float64),
+        sensor_every=log.sensor_every,
     )
 
 

@@ -75,9 +75,11 @@ class DriveE2EDataset(Dataset):
             (`img_jpeg`) for `decode_batch` on the GPU.
         with_lidar, with_radar: add `points` (P, 5) / `radar_points` (R, 7), LiDAR frame.
         queue_length: frames per sample for temporal models, oldest first, `queue_stride_frames`
-            apart; per-frame fields then gain a leading queue dimension.
+            10 Hz frames apart (a multiple of a log's sensor interval); per-frame fields then
+            gain a leading queue dimension.
         history_s, future_s: the ego's and agents' trajectory horizons at 2 Hz.
-        frame_stride: serve every n-th logged frame (5 gives nuScenes' 2 Hz keyframes).
+        frame_stride: serve the sensor frames `frame_stride` 10 Hz frames apart (5 gives
+            nuScenes' 2 Hz keyframes, from a 10 Hz log and from a `--sensor-hz 2` log alike).
         with_map: add the vector map labels `gt_map_pts` (K, map_points, 2) and
             `gt_map_labels` (K,) in the LiDAR frame, inside a patch of `map_patch_m` (along x,
             along y); needs the data root's `maps/<map_id>.json`.
@@ -170,17 +172,27 @@ class DriveE2EDataset(Dataset):
                 )
             with LogReader(path) as log:  # a truncated log fails here, naming its file
                 self.log_info[row.scenario_id] = self._check_log(log)
+                first = log.first_frame
             map_file = store.map_path(self.root, self.log_info[row.scenario_id]["map_id"])
             if self.with_map and not map_file.is_file():
                 raise DriveE2EError(
                     f"{map_file}: the map of clip {row.scenario_id!r} is missing (map labels "
                     "need it; pass with_map=False to go without)"
                 )
+            # strides count 10 Hz frames whatever the log's sensor rate: the same seconds apart
             clip_frames = sorted(frames[row.scenario_id])
-            samples.extend((row.scenario_id, f) for f in clip_frames[::frame_stride])
+            samples.extend(
+                (row.scenario_id, f) for f in clip_frames if (f - first) % frame_stride == 0
+            )
         return samples
 
     def _check_log(self, log: LogReader) -> dict[str, Any]:
+        if self.queue_length > 1 and self.queue_stride_frames % log.sensor_every:
+            raise DriveE2EError(
+                f"{log.path}: sensor data at every {log.sensor_every}th frame (collected at "
+                f"{10 // log.sensor_every} Hz); queue_stride_frames={self.queue_stride_frames} "
+                "must be a multiple of it"
+            )
         missing = [c for c in self.cameras if c not in log.rig["cameras"]]
         if missing:
             raise DriveE2EError(
@@ -293,7 +305,7 @@ class DriveE2EDataset(Dataset):
 
     def _labels(self, clip: ClipLabels, row: int, info: dict[str, Any]) -> dict[str, Any]:
         lidar_to_world = labels.ego_to_world(clip, row) @ info["lidar2ego"]
-        boxes = clip.boxes[row]
+        boxes = clip.frame_boxes(row)
         history, history_mask = labels.ego_trajectory(clip, row, self.horizons.history_steps, -1)
         future, future_mask = labels.ego_trajectory(clip, row, self.horizons.future_steps, +1)
         agents = labels.agent_futures(clip, row, self.horizons.future_steps, lidar_to_world)

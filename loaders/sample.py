@@ -103,7 +103,7 @@ def agent_futures(
     `(M, steps, 2)`, heading in the LiDAR frame `(M, steps)`, the mask `(M, steps)`, and the
     future boxes in the current ego frame `(M, steps, 5)`: x, y, length, width, yaw (for the
     collision metric)."""
-    boxes = clip.boxes[row]
+    boxes = clip.frame_boxes(row)
     count = len(boxes)
     rows, exists = _steps(row, steps, +1, clip.num_frames)
     trajectories = np.zeros((count, steps, 2))
@@ -114,7 +114,7 @@ def agent_futures(
     for step, (future_row, ok) in enumerate(zip(rows, exists, strict=True)):
         if not ok:
             continue
-        future = clip.boxes[future_row]
+        future = clip.frame_boxes(future_row)
         where = {instance: k for k, instance in enumerate(future.instance_ids)}
         for k, instance in enumerate(boxes.instance_ids):
             j = where.get(instance)

@@ -3,7 +3,7 @@
 By default, what a user runs: the real mix.
 
     python scripts/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
-        [--gpus all|0,1] [--identical K] [--json FILE]
+        [--gpus all|0,1] [--sensor-hz 10|2] [--identical K] [--json FILE]
 
 makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day), collects it whole
 (or `--max-frames` frames a clip) the way `drivee2e collect DATA --workers auto` does (the CLI's
@@ -81,6 +81,7 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=16, help="real mix: clips of synth")
     parser.add_argument("--max-frames", type=int, default=None, help="real mix: frames a clip")
     parser.add_argument("--gpus", default="all", help="real mix: as drivee2e collect --gpus")
+    parser.add_argument("--sensor-hz", default="10", help="real mix: as drivee2e collect")
     parser.add_argument(
         "--identical", type=int, default=0,
         help="real mix: collect the K shortest clips again with one worker, compare bytes",
@@ -218,6 +219,7 @@ def mix(args: argparse.Namespace) -> None:
                 ["synth", "--out", str(root), "--clips", str(args.clips), "--seed", str(args.seed)]
             )
         argv = ["collect", str(root), "--workers", args.workers or "auto", "--gpus", args.gpus]
+        argv += ["--sensor-hz", args.sensor_hz]
         if args.max_frames:
             argv += ["--max-frames", str(args.max_frames)]
         planned = plan_collect(build_parser().parse_args(argv))
@@ -240,7 +242,8 @@ def mix(args: argparse.Namespace) -> None:
         f"real mix: {len(clips)} clips of synth --seed {args.seed}, "
         f"{'whole' if not args.max_frames else f'{args.max_frames} frames a clip'}; "
         f"renderer {summary.results[0].renderer}, {planned.options.lidar} LiDAR, "
-        f"{planned.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}"
+        f"{planned.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}, "
+        f"sensors at {planned.options.sensor_hz} Hz"
     )
     print(f"collected {frames / wall:6.2f} frames/s ({frames} frames in {wall:.1f} s)")
     print(

@@ -282,7 +282,9 @@ def test_the_host_plan_fits_cores_frames_memory_and_gpus():
     # one 200-frame clip is cut into 25-frame segments: 8 workers, not 1
     assert plan(frames=200, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 8
     assert plan(frames=75, cores=16, memory=125.0, gpu=False, renderer="gl").workers == 3
-    assert plan(frames=9000, cores=16, memory=6.0, gpu=False, renderer="egl").workers == 4  # 1.5 GiB
+    assert (
+        plan(frames=9000, cores=16, memory=6.0, gpu=False, renderer="egl").workers == 4
+    )  # 1.5 GiB
     laptop = plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="gl")
     assert (laptop.workers, laptop.lidar) == (2, "depth")  # llvmpipe: depth images faster
     assert plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="egl").lidar == "depth"

@@ -118,9 +118,7 @@ def test_a_crashed_run_resumes_from_its_finished_segments(
     assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
 
 
-def test_segments_that_do_not_make_the_clip_are_a_clear_error(
-    synthetic_root: Path, tmp_path: Path
-):
+def test_segments_that_do_not_make_the_clip_are_a_clear_error(synthetic_root: Path, tmp_path: Path):
     scenario_id = store.scenario_ids(synthetic_root)[1]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=6)
@@ -132,7 +130,7 @@ def test_segments_that_do_not_make_the_clip_are_a_clear_error(
     path = segments.segments_dir(root, scenario_id) / "000000-000003.segment"
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])  # cut short: not whole
-    with pytest.raises(DriveE2EError, match="ends early|no end marker"):
+    with pytest.raises(DriveE2EError, match=r"ends early|no end marker"):
         list(segments.read_frames(path))
     shutil.rmtree(segments.segments_dir(root, scenario_id))
 

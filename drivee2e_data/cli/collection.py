@@ -97,6 +97,11 @@ def add_collect(commands) -> None:  # type: ignore[no-untyped-def]
         "default: depth where an OpenGL renderer works (gl or egl), else raycast",
     )  # fmt: skip
     collect.add_argument(
+        "--sensor-hz", type=int, choices=topics.SENSOR_RATES_HZ, default=10,
+        help="render and log the sensors (and boxes) at this rate; the ego's pose, IMU, GNSS and "
+        "the lights stay at 10 Hz (2: nuScenes' keyframes, about 5x less work; default 10)",
+    )  # fmt: skip
+    collect.add_argument(
         "--post-process", choices=POST_PROCESS_DEVICES, default="cpu",
         help="where camera images get their weather, resize and JPEG: cpu (OpenCV; default) "
         "or cuda (torch and nvJPEG, images within 2 levels of the CPU's before JPEG; slower "
@@ -178,6 +183,7 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
         label_scale=args.label_scale,
         lidar=lidar,
         post_process=post_process,
+        sensor_hz=args.sensor_hz,
     )
     return CollectPlan(options, workers, gpus, host if scenario_ids else None)
 

@@ -97,8 +97,14 @@ def attribute(class_name: str, speed_mps: float) -> str:
     return "vehicle.moving" if speed_mps > MOVING_MPS else "vehicle.stopped"
 
 
-def keyframes(first_frame: int, count: int, every: int) -> list[int]:
-    """The frames exported as samples: every `every`-th logged frame."""
+def keyframes(first_frame: int, count: int, every: int, sensor_every: int = 1) -> list[int]:
+    """The frames exported as samples: every `every`-th logged frame, which must be sensor
+    frames (a log collected with `--sensor-hz 2` has them at every 5th)."""
+    if every % sensor_every:
+        raise DriveE2EError(
+            f"a sample every {every} frames: this log has sensor data at every {sensor_every}th "
+            f"frame only (collected at {10 // sensor_every} Hz); export every multiple of it"
+        )
     return list(range(first_frame, first_frame + count, every))
 
 

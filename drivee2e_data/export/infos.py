@@ -67,7 +67,9 @@ def export_infos(
             intersection_map = store.read_map(root, str(log.scenario_meta["map_id"]))
             offset = common.global_offset(intersection_map)
             elements = map_elements(intersection_map)
-            frames = common.keyframes(clip.first_frame, clip.num_frames, keyframe_every)
+            frames = common.keyframes(
+                clip.first_frame, clip.num_frames, keyframe_every, clip.sensor_every
+            )
             for k in range(len(frames)):
                 infos.append(
                     _info(
@@ -162,7 +164,7 @@ def _boxes(
     stride: int,
 ) -> dict[str, Any]:
     """The boxes, their futures and features in VAD's conventions (LiDAR frame)."""
-    boxes = clip.boxes[row]
+    boxes = clip.frame_boxes(row)
     count = len(boxes)
     world_pose = lidar_to_global.copy()  # the LiDAR's pose in the map's frame (boxes are there)
     world_pose[:3, 3] -= offset
@@ -177,9 +179,12 @@ def _boxes(
     for i, instance in enumerate(boxes.instance_ids):
         centre, yaw = array[i, :2], array[i, 6]
         for j, future_row in enumerate(rows):
-            if future_row >= clip.num_frames or instance not in clip.boxes[future_row].instance_ids:
+            if (
+                future_row >= clip.num_frames
+                or instance not in clip.frame_boxes(future_row).instance_ids
+            ):
                 break
-            future = clip.boxes[future_row]
+            future = clip.frame_boxes(future_row)
             m = future.instance_ids.index(instance)
             position = labels.to_frame(world_pose, future.centre_m[m : m + 1])[0, :2]
             heading = labels.yaw_in(world_pose, future.yaw_rad[m : m + 1])[0]

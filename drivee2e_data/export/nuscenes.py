@@ -174,7 +174,9 @@ class _Tables:
             }
         )
         calibration = self._add_calibration(scenario_id, log)
-        frames = common.keyframes(clip.first_frame, clip.num_frames, keyframe_every)
+        frames = common.keyframes(
+            clip.first_frame, clip.num_frames, keyframe_every, clip.sensor_every
+        )
         scene_token = common.token("scene", scenario_id)
         sample_tokens = [common.token("sample", scenario_id, f) for f in frames]
         previous_data: dict[str, str] = {}
@@ -341,7 +343,7 @@ class _Tables:
     def _add_annotations(
         self, clip: ClipLabels, row: int, frame: int, sample_token: str, offset: np.ndarray
     ) -> None:
-        boxes = clip.boxes[row]
+        boxes = clip.frame_boxes(row)
         for k, instance_id in enumerate(boxes.instance_ids):
             class_name = CLASSES[boxes.labels[k]]
             category, _, _ = common.NUSCENES_CATEGORY[class_name]

@@ -65,6 +65,8 @@ class LogReader:
         self.summary, self.metadata = summary, metadata
         frames = metadata[topics.FRAMES_METADATA]
         self.first_frame = int(frames["first_frame"])
+        # sensors at every n-th frame (`collect --sensor-hz`); logs before 2026-11-24: every
+        self.sensor_every = int(frames.get("sensor_every", "1"))
         self.t_ns: NDArray[np.int64] = np.array(json.loads(frames["t_ns"]), np.int64)
         self.scenario_meta: dict[str, Any] = json.loads(metadata[topics.SCENARIO_METADATA]["meta"])
         self.rig: dict[str, Any] = json.loads(metadata[topics.RIG_METADATA]["rig"])
@@ -81,7 +83,13 @@ class LogReader:
 
     @property
     def frames(self) -> range:
+        """Every frame of the log: the ego's state, IMU, GNSS and the lights are at each."""
         return range(self.first_frame, self.first_frame + self.num_frames)
+
+    @property
+    def sensor_frames(self) -> range:
+        """The frames with sensor data and boxes: all at 10 Hz, every fifth at 2 Hz."""
+        return range(self.first_frame, self.first_frame + self.num_frames, self.sensor_every)
 
     @property
     def cameras(self) -> tuple[str, ...]:
@@ -211,8 +219,9 @@ class LogReader:
         return future_path(x, y, yaw, 0)
 
     def validate(self) -> None:
-        """Every per-frame topic once at every frame, `/map` once at the first, and the
-        summary's counts agreeing; raises `LogFormatError` naming the first gap."""
+        """Every state topic once at every frame, every sensor topic once at every sensor frame
+        (and never between), `/map` once at the first, and the summary's counts agreeing;
+        raises `LogFormatError` naming the first gap."""
         expected = set(topics.per_frame_topics(self.cameras))
         expected |= {
             topics.camera_label_topic(camera, kind)
@@ -232,9 +241,11 @@ class LogReader:
         except (McapError, ZstdError) as error:  # a damaged chunk fails to inflate
             raise LogFormatError(f"{self.path}: unreadable chunk ({error})") from None
         first = int(self.t_ns[0])
+        sensor_frames = set(self.sensor_frames)
         for t, frame in times.items():
             for topic in sorted(expected | {topics.MAP}):
-                count, wanted = seen[(topic, t)], 1
+                count = seen[(topic, t)]
+                wanted = int(topic in topics.STATE_TOPICS or frame in sensor_frames)
                 if topic == topics.MAP:
                     wanted = 1 if t == first else 0
                 if count != wanted:
@@ -247,7 +258,11 @@ class LogReader:
             raise LogFormatError(f"{self.path}: unexpected topic {sorted(unexpected)[0]}")
         counts = self.summary.statistics.channel_message_counts if self.summary.statistics else {}
         for channel_id, channel in self.summary.channels.items():
-            wanted = 1 if channel.topic == topics.MAP else self.num_frames
+            wanted = len(self.sensor_frames)
+            if channel.topic in topics.STATE_TOPICS:
+                wanted = self.num_frames
+            elif channel.topic == topics.MAP:
+                wanted = 1
             if counts.get(channel_id) != wanted:
                 raise LogFormatError(
                     f"{self.path}: the summary counts {counts.get(channel_id)} messages on "

@@ -57,6 +57,12 @@ def radar_topic(radar: str) -> str:
     return f"/{radar}"
 
 
+# what a log carries at every frame, also between sensor frames (`collect --sensor-hz 2`)
+STATE_TOPICS = (TF, GNSS, IMU, EGO_STATE, TRAFFIC_LIGHTS)
+SENSOR_RATES_HZ = (10, 5, 2, 1)  # 10 Hz frames; sensors at every, 2nd, 5th or 10th
+FRAME_RATE_HZ = 10
+
+
 def per_frame_topics(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
     """Every topic a log carries at every frame, given the cameras it records."""
     return (

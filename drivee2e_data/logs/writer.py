@@ -26,7 +26,7 @@ from drivee2e_data.logs import messages, topics
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion
 from drivee2e_data.sensors.rig import Rig
-from drivee2e_data.sensors.suite import SensorFrame
+from drivee2e_data.sensors.suite import SensorFrame, StateFrame
 
 CHUNK_BYTES = 4 * 1024 * 1024  # an upper bound: every frame ends its chunks (see `write`)
 PARTIAL_SUFFIX = ".partial"
@@ -112,7 +112,27 @@ class FrameEncoder:
         self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
         self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
 
-    def encode(self, frame: SensorFrame) -> EncodedFrame:
+    def encode_state(self, frame: StateFrame) -> EncodedFrame:
+        """A frame between sensor frames (`collect --sensor-hz`): the pose, GNSS, IMU, ego state
+        and traffic lights, one chunk."""
+        t = frame.t_ns
+        records: list[Record] = []
+
+        def put(topic: str, message: Any) -> None:
+            records.append((topic, type(message).DESCRIPTOR.full_name, message.SerializeToString()))
+
+        put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
+        put(topics.GNSS, messages.location_fix(t, frame, self.motion))
+        put(topics.IMU, messages.imu_message(t, frame))
+        put(topics.EGO_STATE, messages.ego_state(t, self.motion, frame.frame))
+        put(
+            topics.TRAFFIC_LIGHTS,
+            messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
+        )
+        records.append(FLUSH)
+        return EncodedFrame(frame.frame, int(t), tuple(records))
+
+    def encode(self, frame: SensorFrame | StateFrame) -> EncodedFrame:
         """One frame's messages, serialised, in the order they are written, with the points
         where a chunk ends (`FLUSH`).
 
@@ -123,6 +143,8 @@ class FrameEncoder:
         worker can encode frames of a clip's segment and another process write them
         (`collect/segments.py`); the log is the same bytes either way.
         """
+        if isinstance(frame, StateFrame):
+            return self.encode_state(frame)
         t = frame.t_ns
         records: list[Record] = []
 
@@ -179,8 +201,10 @@ class LogWriter:
         collection: dict[str, str],
         camera_labels: dict[str, str] | None = None,
         first_frame: int = 0,
+        sensor_every: int = 1,
     ) -> None:
         self.path, self.partial = path, partial_path(path)
+        self.sensor_every = sensor_every  # sensors at every n-th frame (`collect --sensor-hz`)
         self.encoder = FrameEncoder(scenario, intersection_map, rig, motion, first_frame)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
@@ -203,7 +227,7 @@ class LogWriter:
         self.t_ns: list[int] = []  # of the frames written
         self.first_frame = first_frame
 
-    def write(self, frame: SensorFrame) -> None:
+    def write(self, frame: SensorFrame | StateFrame) -> None:
         """All topics of one frame, each with log time and publish time = the frame's time."""
         self.write_encoded(self.encoder.encode(frame))
 
@@ -245,6 +269,7 @@ class LogWriter:
             {
                 "first_frame": str(self.first_frame),
                 "count": str(len(self.t_ns)),
+                "sensor_every": str(self.sensor_every),
                 "t_ns": json.dumps(self.t_ns),
             },
         )

@@ -98,6 +98,21 @@ class SensorFrame:
     camera_labels: dict[str, dict[str, bytes]] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class StateFrame:
+    """A frame between sensor frames (`collect --sensor-hz`): where the ego is and what it
+    feels, and the lights; nothing rendered. Field names as `SensorFrame`'s."""
+
+    frame: int
+    t_ns: int
+    ego_to_world: NDArray[np.float64]  # (4, 4)
+    gnss_lat_lon_alt: NDArray[np.float64]  # (3,)
+    imu_acceleration_mps2: NDArray[np.float64]  # (3,)
+    imu_angular_velocity_radps: NDArray[np.float64]  # (3,)
+    signals: dict[str, SignalState]
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
 class SensorSuite:
     """The rig mounted on the ego of the world's scenario."""
 
@@ -133,6 +148,22 @@ class SensorSuite:
                 {t.track_id: t.agent_class for t in scenario.tracks},
                 self.instance_index,
             )
+
+    def capture_state(self, frame: int) -> StateFrame:
+        """The frame's pose, GNSS, IMU and lights, without rendering anything."""
+        scenario = self.world.scenario
+        ego_to_world = self.motion.ego_to_world(frame)
+        return StateFrame(
+            frame=frame,
+            t_ns=int(scenario.t_ns[frame]),
+            ego_to_world=ego_to_world,
+            gnss_lat_lon_alt=enu_to_wgs84(ego_to_world[:3, 3], self.world.intersection_map.origin)[
+                0
+            ],
+            imu_acceleration_mps2=self.imu_acceleration[frame],
+            imu_angular_velocity_radps=self.imu_angular_velocity[frame],
+            signals={s.signal_id: s.state_at(frame) for s in scenario.signals},
+        )
 
     def capture(self, frame: int) -> SensorFrame:
         world, scenario, seconds = self.world, self.world.scenario, dict.fromkeys(STAGES, 0.0)
