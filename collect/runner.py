@@ -7,6 +7,7 @@ One collector per data root at a time: `logs/.collect.lock` is held for the whol
 
 from __future__ import annotations
 
+import collections
 import fcntl
 import io
 import multiprocessing
@@ -19,7 +20,6 @@ from concurrent.futures import (
     FIRST_COMPLETED,
     Future,
     ProcessPoolExecutor,
-    ThreadPoolExecutor,
     wait,
 )
 from concurrent.futures.process import BrokenProcessPool
@@ -178,9 +178,16 @@ class _ClipTracker:
 
     def merge(self, scenario_id: str) -> None:
         """Write the clip's log from its segments (in this process)."""
-        result = segments.merge_clip(
-            self.root, scenario_id, self.options, self.clip_frames[scenario_id]
+        self.merged(
+            scenario_id,
+            merge_unit(self.root, scenario_id, self.options, self.frames_of(scenario_id)),
         )
+
+    def frames_of(self, scenario_id: str) -> int:
+        return self.clip_frames[scenario_id]
+
+    def merged(self, scenario_id: str, result: JobResult) -> None:
+        """Count in the result of writing the clip's log (`segments.merge_clip`)."""
         clip = self.clips[scenario_id]
         clip.stage_seconds["write"] = clip.stage_seconds.get("write", 0.0) + result.seconds
         clip.seconds += result.seconds
@@ -190,6 +197,10 @@ class _ClipTracker:
 
     def results(self) -> list[JobResult]:
         return list(self.clips.values())
+
+
+def merge_unit(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:
+    return segments.merge_clip(root, scenario_id, options, frames)
 
 
 def _add(total: JobResult, part: JobResult) -> None:
@@ -325,8 +336,10 @@ def _run_pool(
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
 ) -> None:
-    """Units on a pool of worker processes, longest first; a clip's log is written from its
-    segments by a thread of this process while the workers go on."""
+    """Units on a pool of worker processes, longest first. Jobs are handed out as workers free
+    up (one queued ahead), and a clip whose segments are all done has its log written next
+    by the first free worker, ahead of the units still waiting: the logs get written while the
+    collection goes on, by many processes, instead of piling up at the end."""
     # spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
     context = multiprocessing.get_context("spawn")
     frames_done = context.Queue()
@@ -337,33 +350,41 @@ def _run_pool(
         initializer=_init_worker,
         initargs=(frames_done, started, gpus),
     )
-    writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="merge")
-    merges: list[Future] = []
+    waiting = collections.deque(units)
+    merges: collections.deque[str] = collections.deque()
+    running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
+
+    def hand_out() -> None:
+        while len(running) < workers + 1 and (merges or waiting):
+            if merges:
+                clip = merges.popleft()
+                job = pool.submit(merge_unit, root, clip, options, tracker.frames_of(clip))
+                running[job] = clip
+            else:
+                unit = waiting.popleft()
+                running[pool.submit(_pooled_unit, root, unit, options)] = unit
+
     try:
-        futures: dict[Future, WorkUnit] = {
-            pool.submit(_pooled_unit, root, u, options): u for u in units
-        }
-        remaining = set(futures)
-        while remaining:
-            done, remaining = wait(remaining, timeout=0.25, return_when=FIRST_COMPLETED)
+        hand_out()
+        while running:
+            done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
             for future in done:
-                unit = futures[future]
+                job = running.pop(future)
+                scenario_id = job if isinstance(job, str) else job.scenario_id
                 try:
                     result = future.result()
                 except BrokenProcessPool:
-                    result = JobResult(unit.scenario_id, "failed", error="the worker process died")
-                merge = tracker.finished(unit, result)
-                if merge is not None:
-                    merges.append(writer.submit(tracker.merge, merge))
+                    result = JobResult(scenario_id, "failed", error="the worker process died")
+                if isinstance(job, str):
+                    tracker.merged(job, result)
+                elif (clip := tracker.finished(job, result)) is not None:
+                    merges.append(clip)
+            hand_out()
         _drain(frames_done, tick)
-        for merge_future in merges:
-            merge_future.result()
     except BaseException:
-        writer.shutdown(wait=True, cancel_futures=True)
         stop_pool(pool)
         raise
-    writer.shutdown()
     pool.shutdown()
 
 

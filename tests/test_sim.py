@@ -327,12 +327,15 @@ def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
 
 
 def test_sensor_noise_is_seeded_standard_normal_and_differs_between_seeds():
-    from drivee2e_data.sim.conditions import sensor_noise
+    from drivee2e_data.sim.conditions import noise_pool, sensor_noise
 
     first = sensor_noise((768, 1024, 3), np.random.default_rng(7))
     again = sensor_noise((768, 1024, 3), np.random.default_rng(7))
     other = sensor_noise((768, 1024, 3), np.random.default_rng(8))
     assert np.array_equal(first, again) and not np.array_equal(first, other)
     assert abs(first.mean()) < 0.01 and abs(first.std() - 1.0) < 0.01
+    full = sensor_noise((900, 1600, 3), np.random.default_rng(7))  # a camera: from the pool
+    assert np.shares_memory(full, noise_pool())
     big = sensor_noise((2000, 2000, 3), np.random.default_rng(7))  # beyond half the pool
     assert big.shape == (2000, 2000, 3) and abs(big.std() - 1.0) < 0.01
+    assert not np.shares_memory(big, noise_pool())
