@@ -4,10 +4,10 @@ Each worker renders on one core (llvmpipe, or the CPU side of a GPU renderer) an
 1 GiB (docs/benchmarks.md), so the workers are the usable cores, no more than the units of work
 the frames make (`collect.segments`: a clip is cut into segments, so a few long clips still
 keep every core busy) and no more than the memory allows at `WORKER_MEMORY_GIB` each. On a host
-with several GPUs the workers' GL contexts are spread over them round robin (`gpus`). Where an OpenGL renderer works (the GL
-renderer or pybullet's EGL plugin, on a GPU or on Mesa's llvmpipe), the LiDAR is read from depth
-images (several times faster a sweep than ray casting, docs/benchmarks.md); with TinyRenderer,
-ray casting.
+with several GPUs the workers' GL contexts are spread over them round robin (`gpus`). Where an
+OpenGL renderer works (the GL renderer or pybullet's EGL plugin, on a GPU or on Mesa's
+llvmpipe), the LiDAR is read from depth images (several times faster a sweep than ray casting,
+docs/benchmarks.md); with TinyRenderer, ray casting.
 """
 
 from __future__ import annotations

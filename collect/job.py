@@ -149,9 +149,9 @@ def open_clip(root: Path, scenario_id: str, options: CollectOptions) -> ClipSetu
     return ClipSetup(world, suite, collection, labels)
 
 
-def planned_frames(num_frames: int, options: CollectOptions) -> int:
+def planned_frames(num_frames: int, max_frames: int | None) -> int:
     """How many of a clip's frames are collected: all, or the first `max_frames`."""
-    return num_frames if options.max_frames is None else min(num_frames, options.max_frames)
+    return num_frames if max_frames is None else min(num_frames, max_frames)
 
 
 def capture_frames(
@@ -197,7 +197,7 @@ def collect_clip(
         setup = open_clip(root, scenario_id, options)
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
-        frames = range(planned_frames(scenario.num_frames, options))
+        frames = range(planned_frames(scenario.num_frames, options.max_frames))
         with LogWriter(
             path,
             scenario,

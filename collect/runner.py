@@ -16,12 +16,7 @@ import queue
 import signal
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import (
-    FIRST_COMPLETED,
-    Future,
-    ProcessPoolExecutor,
-    wait,
-)
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -95,12 +90,14 @@ def _without_ego(root: Path, scenario_id: str) -> bool:
         return False
 
 
-def _planned_frames(root: Path, scenario_id: str, options: CollectOptions) -> int | None:
+def frames_to_collect(root: Path, scenario_id: str, max_frames: int | None) -> int | None:
+    """How many frames of the clip a run collects, from its meta.json alone (the job reads the
+    rest); None where that cannot be read (its job fails with the reason)."""
     try:
-        _, frames = store.read_timeline(root, scenario_id)  # meta.json only: the job reads the rest
+        _, frames = store.read_timeline(root, scenario_id)
     except DriveE2EError:
-        return None  # its job fails with the reason; the other clips go ahead
-    return planned_frames(frames, options)
+        return None
+    return planned_frames(frames, max_frames)
 
 
 def _plan(
@@ -112,14 +109,14 @@ def _plan(
     segments.remove_temporary(root)
     clip_frames, covered, unreadable = {}, {}, []
     for scenario_id in scenario_ids:
-        frames = _planned_frames(root, scenario_id, options)
+        frames = frames_to_collect(root, scenario_id, options.max_frames)
         if frames is None:
             unreadable.append(WorkUnit(scenario_id, 0, 0, whole=True))
             continue
         clip_frames[scenario_id] = frames
         kept = []
-        for path in segments.finished_segments(root, scenario_id, options):
-            start, stop = segments.segment_range(path)
+        for path, header in segments.finished_segments(root, scenario_id, options):
+            start, stop = header["start"], header["stop"]
             if stop > frames or any(start < b and a < stop for a, b in kept):
                 path.unlink()  # made for a longer --max-frames, or overlapping: redone
             else:
@@ -178,13 +175,8 @@ class _ClipTracker:
 
     def merge(self, scenario_id: str) -> None:
         """Write the clip's log from its segments (in this process)."""
-        self.merged(
-            scenario_id,
-            merge_unit(self.root, scenario_id, self.options, self.frames_of(scenario_id)),
-        )
-
-    def frames_of(self, scenario_id: str) -> int:
-        return self.clip_frames[scenario_id]
+        frames = self.clip_frames[scenario_id]
+        self.merged(scenario_id, segments.merge_clip(self.root, scenario_id, self.options, frames))
 
     def merged(self, scenario_id: str, result: JobResult) -> None:
         """Count in the result of writing the clip's log (`segments.merge_clip`)."""
@@ -197,10 +189,6 @@ class _ClipTracker:
 
     def results(self) -> list[JobResult]:
         return list(self.clips.values())
-
-
-def merge_unit(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:
-    return segments.merge_clip(root, scenario_id, options, frames)
 
 
 def _add(total: JobResult, part: JobResult) -> None:
@@ -358,7 +346,8 @@ def _run_pool(
         while len(running) < workers + 1 and (merges or waiting):
             if merges:
                 clip = merges.popleft()
-                job = pool.submit(merge_unit, root, clip, options, tracker.frames_of(clip))
+                frames = tracker.clip_frames[clip]
+                job = pool.submit(segments.merge_clip, root, clip, options, frames)
                 running[job] = clip
             else:
                 unit = waiting.popleft()

@@ -132,9 +132,12 @@ def segments_dir(root: Path, scenario_id: str) -> Path:
     return Path(root) / LOGS_FOLDER / SEGMENTS_FOLDER / scenario_id
 
 
-def finished_segments(root: Path, scenario_id: str, options: CollectOptions) -> list[Path]:
-    """The clip's whole segment files made with `options`, by first frame; others (made with
-    other options, or unreadable) are deleted, since nothing can use them."""
+def finished_segments(
+    root: Path, scenario_id: str, options: CollectOptions
+) -> list[tuple[Path, dict]]:
+    """The clip's whole segment files made with `options` and their headers (`start`, `stop`,
+    the log's records), by first frame; others (made with other options, or unreadable) are
+    deleted, since nothing can use them."""
     folder = segments_dir(root, scenario_id)
     if not folder.is_dir():
         return []
@@ -148,13 +151,8 @@ def finished_segments(root: Path, scenario_id: str, options: CollectOptions) -> 
         if header is None or header["fingerprint"] != wanted:
             path.unlink()
             continue
-        kept.append(path)
+        kept.append((path, header))
     return kept
-
-
-def segment_range(path: Path) -> tuple[int, int]:
-    start, stop = path.name.removesuffix(SUFFIX).split("-")
-    return int(start), int(stop)
 
 
 def remove_temporary(root: Path) -> None:
@@ -292,15 +290,15 @@ def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: in
     root = Path(root)
 
     def work(result: JobResult) -> None:
-        paths = finished_segments(root, scenario_id, options)
-        ranges = [segment_range(p) for p in paths]
+        found = finished_segments(root, scenario_id, options)
+        paths, headers = [p for p, _ in found], [h for _, h in found]
+        ranges = [(h["start"], h["stop"]) for h in headers]
         gaps = uncovered(frames, ranges)
         if gaps or sum(b - a for a, b in ranges) != frames:
             raise DriveE2EError(
                 f"{segments_dir(root, scenario_id)}: segments {ranges} do not hold frames "
                 f"0-{frames - 1} once each"
             )
-        headers = [read_header(p) for p in paths]
         records = {json.dumps([h["collection"], h["labels"]], sort_keys=True) for h in headers}
         if len(records) != 1:
             raise DriveE2EError(

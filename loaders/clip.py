@@ -97,7 +97,7 @@ def read_clip(log: LogReader) -> ClipLabels:
     """The labels of every frame of an open log."""
     count = log.num_frames
     by_topic: dict[str, list] = {topic: [None] * count for topic in _SMALL_TOPICS}
-    sensor_rows = set(range(0, count, log.sensor_every))
+    sensor_rows = {frame - log.first_frame for frame in log.sensor_frames}
     row_of = {int(t): k for k, t in enumerate(log.t_ns)}
     for _, channel, message, decoded in log.decoded_messages(_SMALL_TOPICS):
         row = row_of.get(message.log_time)

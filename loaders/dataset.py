@@ -188,10 +188,11 @@ class DriveE2EDataset(Dataset):
 
     def _check_log(self, log: LogReader) -> dict[str, Any]:
         if self.queue_length > 1 and self.queue_stride_frames % log.sensor_every:
+            rate = topics.FRAME_RATE_HZ // log.sensor_every
             raise DriveE2EError(
                 f"{log.path}: sensor data at every {log.sensor_every}th frame (collected at "
-                f"{10 // log.sensor_every} Hz); queue_stride_frames={self.queue_stride_frames} "
-                "must be a multiple of it"
+                f"{rate} Hz); queue_stride_frames={self.queue_stride_frames} must be a multiple "
+                "of it"
             )
         missing = [c for c in self.cameras if c not in log.rig["cameras"]]
         if missing:

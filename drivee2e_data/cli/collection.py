@@ -169,7 +169,10 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
     gpus = _chosen_gpus(args.gpus)
     host = None
     if workers == "auto" or lidar is None:  # the host decides (an EGL probe, once)
-        frames = sum(_clip_frames(args.data, s, args.max_frames) for s in scenario_ids)
+        frames = sum(
+            collect_runner.frames_to_collect(args.data, s, args.max_frames) or 0
+            for s in scenario_ids
+        )
         host = collect_host.plan(frames, renderer=args.renderer, gpus=len(gpus))
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar
@@ -228,16 +231,6 @@ def run_collect(args: argparse.Namespace) -> int:
     for result in failed:
         print(f"failed: {result.scenario_id}: {result.error}", file=sys.stderr)
     return 1 if failed else 0
-
-
-def _clip_frames(root: Path, scenario_id: str, max_frames: int | None) -> int:
-    """Frames to collect of a clip, from its meta.json (0 where it cannot be read: the clip's
-    job reports why)."""
-    try:
-        frames = store.read_timeline(root, scenario_id)[1]
-    except DriveE2EError:
-        return 0
-    return frames if max_frames is None else min(frames, max_frames)
 
 
 def run_logs(args: argparse.Namespace) -> int:

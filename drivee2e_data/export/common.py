@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.geometry import quaternion_from_rotation
 from drivee2e_data.hdmap import IntersectionMap
+from drivee2e_data.logs import topics
 
 MAP_RESOLUTION_M = 0.1  # nuScenes map masks: 10 pixels a metre
 MAP_MARGIN_M = 20.0
@@ -101,9 +102,10 @@ def keyframes(first_frame: int, count: int, every: int, sensor_every: int = 1) -
     """The frames exported as samples: every `every`-th logged frame, which must be sensor
     frames (a log collected with `--sensor-hz 2` has them at every 5th)."""
     if every % sensor_every:
+        rate = topics.FRAME_RATE_HZ // sensor_every
         raise DriveE2EError(
             f"a sample every {every} frames: this log has sensor data at every {sensor_every}th "
-            f"frame only (collected at {10 // sensor_every} Hz); export every multiple of it"
+            f"frame only (collected at {rate} Hz); export every multiple of it"
         )
     return list(range(first_frame, first_frame + count, every))
 

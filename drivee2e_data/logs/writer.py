@@ -46,6 +46,11 @@ class EncodedFrame:
     records: tuple[Record, ...]
 
 
+def serialised(topic: str, message: Any) -> Record:
+    """A message as a record: its topic, protobuf type name and bytes."""
+    return (topic, type(message).DESCRIPTOR.full_name, message.SerializeToString())
+
+
 def message_class(full_name: str) -> type:
     """The protobuf class of a message type the log writes (its module is imported here)."""
     descriptor = descriptor_pool.Default().FindMessageTypeByName(full_name)
@@ -119,7 +124,7 @@ class FrameEncoder:
         records: list[Record] = []
 
         def put(topic: str, message: Any) -> None:
-            records.append((topic, type(message).DESCRIPTOR.full_name, message.SerializeToString()))
+            records.append(serialised(topic, message))
 
         put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
         put(topics.GNSS, messages.location_fix(t, frame, self.motion))
@@ -149,7 +154,7 @@ class FrameEncoder:
         records: list[Record] = []
 
         def put(topic: str, message: Any) -> None:
-            records.append((topic, type(message).DESCRIPTOR.full_name, message.SerializeToString()))
+            records.append(serialised(topic, message))
 
         for camera in self.rig.cameras:
             put(

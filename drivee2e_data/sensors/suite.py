@@ -153,13 +153,12 @@ class SensorSuite:
         """The frame's pose, GNSS, IMU and lights, without rendering anything."""
         scenario = self.world.scenario
         ego_to_world = self.motion.ego_to_world(frame)
+        position = ego_to_world[:3, 3]
         return StateFrame(
             frame=frame,
             t_ns=int(scenario.t_ns[frame]),
             ego_to_world=ego_to_world,
-            gnss_lat_lon_alt=enu_to_wgs84(ego_to_world[:3, 3], self.world.intersection_map.origin)[
-                0
-            ],
+            gnss_lat_lon_alt=enu_to_wgs84(position, self.world.intersection_map.origin)[0],
             imu_acceleration_mps2=self.imu_acceleration[frame],
             imu_angular_velocity_radps=self.imu_angular_velocity[frame],
             signals={s.signal_id: s.state_at(frame) for s in scenario.signals},
@@ -234,19 +233,19 @@ class SensorSuite:
             world.set_time(frame)  # the top view shows the ego too
             top = bev.top_view(world, ego_to_world, self.options.bev_size_px)
             bev_jpeg = encode_jpeg(top, self.options.jpeg_quality)
-        gnss = enu_to_wgs84(ego_to_world[:3, 3], world.intersection_map.origin)[0]
+        state = self.capture_state(frame)
         return SensorFrame(
             frame=frame,
-            t_ns=int(scenario.t_ns[frame]),
+            t_ns=state.t_ns,
             ego_to_world=ego_to_world,
             jpeg=jpeg,
             lidar=sweep,
             radars=returns,
-            gnss_lat_lon_alt=gnss,
-            imu_acceleration_mps2=self.imu_acceleration[frame],
-            imu_angular_velocity_radps=self.imu_angular_velocity[frame],
+            gnss_lat_lon_alt=state.gnss_lat_lon_alt,
+            imu_acceleration_mps2=state.imu_acceleration_mps2,
+            imu_angular_velocity_radps=state.imu_angular_velocity_radps,
             boxes=boxes,
-            signals={s.signal_id: s.state_at(frame) for s in scenario.signals},
+            signals=state.signals,
             bev_jpeg=bev_jpeg,
             seconds=seconds,
             camera_labels=labels,
