@@ -79,6 +79,8 @@ class JobResult:
     peak_rss_bytes: int = 0
     renderer: str = ""
     error: str | None = None
+    # frames collected on each Ray node (node id -> frames); empty for the local pool
+    node_frames: dict[str, int] = field(default_factory=dict)
 
 
 def log_path(root: Path, scenario_id: str) -> Path:

@@ -53,6 +53,7 @@ class CollectSummary:
     results: list[JobResult] = field(default_factory=list)
     wall_seconds: float = 0.0
     index_rows: int = 0
+    workers: int = 1  # processes (local) or task slots (Ray) the units were planned for
 
     def of(self, status: str) -> list[JobResult]:
         return [r for r in self.results if r.status == status]
@@ -68,6 +69,15 @@ class CollectSummary:
     @property
     def log_bytes(self) -> int:
         return sum(r.log_bytes for r in self.results if r.status != "failed")
+
+    @property
+    def node_frames(self) -> dict[str, int]:
+        """Frames collected on each Ray node (empty for the local pool)."""
+        total: dict[str, int] = {}
+        for result in self.results:
+            for node, frames in result.node_frames.items():
+                total[node] = total.get(node, 0) + frames
+        return total
 
 
 @contextmanager
@@ -197,6 +207,8 @@ def _add(total: JobResult, part: JobResult) -> None:
     total.log_bytes = max(total.log_bytes, part.log_bytes)
     total.peak_rss_bytes = max(total.peak_rss_bytes, part.peak_rss_bytes)
     total.renderer = total.renderer or part.renderer
+    for node, frames in part.node_frames.items():
+        total.node_frames[node] = total.node_frames.get(node, 0) + frames
     for stage, seconds in part.stage_seconds.items():
         total.stage_seconds[stage] = total.stage_seconds.get(stage, 0.0) + seconds
 
@@ -243,6 +255,8 @@ def collect(
                 summary.results.append(JobResult(scenario_id, "no ego"))
             else:
                 pending.append(scenario_id)
+        if backend == "ray" and pending:  # units for every CPU of the cluster
+            workers = max(workers, _start_ray())
         units, clip_frames = _plan(root, pending, options, workers)
         total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
@@ -268,6 +282,7 @@ def collect(
             (logs / segments.SEGMENTS_FOLDER).rmdir()  # every clip's segments merged
         except OSError:
             pass  # none was made, or a failed clip's segments stay for the rerun
+        summary.workers = workers
         summary.wall_seconds = time.perf_counter() - start
         summary.index_rows = write_index(root)
     order = {s: i for i, s in enumerate(scenario_ids)}
@@ -396,12 +411,10 @@ def _run_ray(
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
 ) -> None:
-    try:
-        import ray
-    except ImportError:
-        raise DriveE2EError("--backend ray needs Ray: pip install 'drivee2e-data[ray]'") from None
-    # joins the cluster named by RAY_ADDRESS, or starts a local one
-    ray.init(ignore_reinit_error=True, log_to_driver=False)
+    if not units:
+        return
+    import ray
+
     remote_unit = ray.remote(num_cpus=1)(_ray_unit).options(
         runtime_env={"env_vars": WORKER_ENVIRONMENT}
     )
@@ -414,13 +427,28 @@ def _run_ray(
         raise
 
 
+def _start_ray() -> int:
+    """Joins the Ray cluster that RAY_ADDRESS names (or starts a local one); returns its CPUs,
+    the task slots the units are planned for."""
+    try:
+        import ray
+    except ImportError:
+        raise DriveE2EError("--backend ray needs Ray: pip install 'drivee2e-data[ray]'") from None
+    ray.init(ignore_reinit_error=True, log_to_driver=False)
+    return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
 def _ray_unit(
     root: Path, unit: WorkUnit, options: CollectOptions, gpus: tuple[int, ...]
 ) -> JobResult:
     """A unit in a Ray worker process: its GL context on a GPU chosen by the process id (Ray
     numbers no workers; the context is made once, at the process's first render)."""
+    import ray
+
     egl_devices.use_device(egl_devices.device_for_worker(os.getpid(), gpus))
-    return run_unit(root, unit, options)
+    result = run_unit(root, unit, options)
+    result.node_frames = {ray.get_runtime_context().get_node_id(): result.frames}
+    return result
 
 
 def _gather_ray(

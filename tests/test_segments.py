@@ -146,3 +146,36 @@ def test_a_pool_cuts_one_long_clip_across_its_workers(
     assert main([*arguments, *SMALL_COLLECT]) == 0
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+
+
+def test_a_two_node_ray_cluster_collects_one_clip_across_both(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path, capsys
+):
+    """Two Ray nodes on this machine (a raylet each, one CPU each): the 36-frame clip's two
+    segments run one on each node, and the log written from them is the one-worker log."""
+    ray = pytest.importorskip("ray", reason="the Ray backend needs the ray extra")
+    from ray.cluster_utils import Cluster
+
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    ray.shutdown()  # another test's local Ray
+    cluster = Cluster(
+        initialize_head=True, head_node_args={"num_cpus": 1, "resources": {"node_a": 1}}
+    )
+    try:
+        cluster.add_node(num_cpus=1, resources={"node_b": 1})
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, log_to_driver=False)
+        arguments = ["collect", str(root), "--max-frames", str(LONG_CLIP_FRAMES)]
+        assert main([*arguments, "--backend", "ray", *SMALL_COLLECT]) == 0
+        nodes = {node["NodeID"][:8] for node in ray.nodes()}
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    out = capsys.readouterr().out
+    assert "workers: 2" in out  # the cluster's two CPUs, not --workers' default of 1
+    shares = out.split("frames on each of 2 Ray nodes: ")[1].splitlines()[0]
+    assert {share.split()[0] for share in shares.split(", ")} == nodes
+    assert [share.split()[1] for share in shares.split(", ")] == ["18", "18"]
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()

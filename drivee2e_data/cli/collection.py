@@ -226,8 +226,12 @@ def run_collect(args: argparse.Namespace) -> int:
         on = f" on {len(gpus)} GPUs" if len(gpus) > 1 else ""
         print(
             f"renderer: {', '.join(renderers)}; LiDAR: {options.lidar}; camera post-processing: "
-            f"{options.post_process}; workers: {workers}{on}"
+            f"{options.post_process}; workers: {summary.workers}{on}"
         )
+    nodes = summary.node_frames
+    if nodes:
+        shares = ", ".join(f"{node[:8]} {frames}" for node, frames in sorted(nodes.items()))
+        print(f"frames on each of {len(nodes)} Ray nodes: {shares}")
     for result in failed:
         print(f"failed: {result.scenario_id}: {result.error}", file=sys.stderr)
     return 1 if failed else 0
