@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import atexit
 import json
+import os
 import resource
 import time
 import traceback
@@ -81,6 +82,9 @@ class JobResult:
     error: str | None = None
     # frames collected on each Ray node (node id -> frames); empty for the local pool
     node_frames: dict[str, int] = field(default_factory=dict)
+    # (began, ended, process id) of each job that went into this result, epoch seconds: where a
+    # run's wall time went (`scripts/bench_collect.py` draws its timeline)
+    spans: list[tuple[float, float, int]] = field(default_factory=list)
 
 
 def log_path(root: Path, scenario_id: str) -> Path:
@@ -222,7 +226,7 @@ def collect_clip(
 def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
     """Run `work` on a fresh result, timed; a bad clip or a bug becomes the result's error (with
     where a bug happened) instead of an exception, so one clip cannot stop the others."""
-    start = time.perf_counter()
+    start, began = time.perf_counter(), time.time()
     result = JobResult(scenario_id, "failed", stage_seconds=dict.fromkeys((*STAGES, "write"), 0.0))
     try:
         work(result)
@@ -235,5 +239,6 @@ def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
             f"{type(error).__name__}: {error} ({Path(where.filename).name}:{where.lineno})"
         )
     result.seconds = time.perf_counter() - start
+    result.spans = [(began, began + result.seconds, os.getpid())]
     result.peak_rss_bytes = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return result

@@ -54,6 +54,8 @@ class CollectSummary:
     wall_seconds: float = 0.0
     index_rows: int = 0
     workers: int = 1  # processes (local) or task slots (Ray) the units were planned for
+    started: float = 0.0  # epoch seconds, as JobResult.spans
+    index_seconds: float = 0.0  # writing logs/index.parquet, the run's last step
 
     def of(self, status: str) -> list[JobResult]:
         return [r for r in self.results if r.status == status]
@@ -193,6 +195,7 @@ class _ClipTracker:
         clip = self.clips[scenario_id]
         clip.stage_seconds["write"] = clip.stage_seconds.get("write", 0.0) + result.seconds
         clip.seconds += result.seconds
+        clip.spans.extend(result.spans)
         clip.log_bytes = result.log_bytes
         if result.status == "failed":
             clip.status, clip.error = "failed", result.error
@@ -209,6 +212,7 @@ def _add(total: JobResult, part: JobResult) -> None:
     total.renderer = total.renderer or part.renderer
     for node, frames in part.node_frames.items():
         total.node_frames[node] = total.node_frames.get(node, 0) + frames
+    total.spans.extend(part.spans)
     for stage, seconds in part.stage_seconds.items():
         total.stage_seconds[stage] = total.stage_seconds.get(stage, 0.0) + seconds
 
@@ -241,7 +245,7 @@ def collect(
             raise DriveE2EError(f"{root}: no scenario {unknown[0]!r} (see drivee2e scenarios)")
         scenario_ids = [s for s in available if s in only]
     logs = root / LOGS_FOLDER
-    summary = CollectSummary()
+    summary = CollectSummary(started=time.time())
     start = time.perf_counter()
     with _run_lock(logs):
         for stale in logs.glob(f".*{PARTIAL_SUFFIX}"):
@@ -283,8 +287,10 @@ def collect(
         except OSError:
             pass  # none was made, or a failed clip's segments stay for the rerun
         summary.workers = workers
-        summary.wall_seconds = time.perf_counter() - start
+        indexing = time.perf_counter()
         summary.index_rows = write_index(root)
+        summary.index_seconds = time.perf_counter() - indexing
+        summary.wall_seconds = time.perf_counter() - start
     order = {s: i for i, s in enumerate(scenario_ids)}
     summary.results.sort(key=lambda r: order[r.scenario_id])
     return summary

@@ -3,14 +3,16 @@
 By default, what a user runs: the real mix.
 
     python scripts/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
-        [--gpus all|0,1] [--sensor-hz 10|2] [--identical K] [--json FILE]
+        [--gpus all|0,1] [--sensor-hz 10|2] [--identical K] [--json FILE] [--timeline PNG]
 
 makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day), collects it whole
 (or `--max-frames` frames a clip) the way `drivee2e collect DATA --workers auto` does (the CLI's
 own planning, `cli.collection.plan_collect`), and prints frames/s, the wall time against the
 summed work of all units divided by the workers (the straggler share), a stage table per
 condition (weather x time of day, ms a frame), the slowest condition against the clear-day clip,
-peak memory and MB of log a frame. Every log is validated; with `--identical K`, the K shortest
+peak memory and MB of log a frame, and where the workers' wall time went (the pool's start
+before each worker's first job, gaps between jobs, the tail after a worker's last job, the index;
+`--timeline PNG` draws every job on its worker's row). Every log is validated; with `--identical K`, the K shortest
 clips are collected again by one worker and compared byte for byte.
 
 The single-clip mode (`--single`) is the earlier benchmark, a favourable case to show beside it:
@@ -39,6 +41,7 @@ import argparse
 import contextlib
 import dataclasses
 import io
+import itertools
 import json
 import tempfile
 import time
@@ -93,6 +96,7 @@ def main() -> None:
     parser.add_argument("--reference-frames", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    parser.add_argument("--timeline", type=Path, default=None, help="real mix: draw jobs here")
     parser.add_argument("--camera-labels", default="", help="e.g. depth,semantic,instance")
     parser.add_argument("--label-scale", type=int, default=4)
     parser.add_argument("--lidar", choices=("raycast", "depth"), default="raycast")
@@ -251,6 +255,11 @@ def mix(args: argparse.Namespace) -> None:
         f"{wall / even:.2f} (straggler share {100 * (1 - even / wall):.0f}% of the wall time)"
     )
     print(f"logs valid: {valid} of {len(clips)}")
+    lost = wall_breakdown(summary, wall)
+    print("workers' wall time (s a worker): " + ", ".join(f"{k} {v:.1f}" for k, v in lost.items()))
+    if args.timeline:
+        draw_timeline(summary, conditions, args.timeline)
+        print(f"timeline: {args.timeline}")
     if args.identical:
         print(f"byte-identical to a one-worker run: {identical} of {args.identical} clips")
     rows = _condition_rows(summary, conditions)
@@ -279,8 +288,64 @@ def mix(args: argparse.Namespace) -> None:
             "summed_work_s": work, "workers": planned.workers, "gpus": list(planned.gpus),
             "wall_over_even": wall / even, "valid_logs": valid, "clips": len(clips),
             "identical": identical, "peak_gib_per_worker": peak_gib, "mb_per_frame": mb,
-            "conditions": {"/".join(k): v for k, v in rows.items()},
+            "conditions": {"/".join(k): v for k, v in rows.items()}, "wall_breakdown": lost,
         }, indent=1))  # fmt: skip
+
+
+def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
+    """Each worker's share of the wall time, averaged over workers: `start` before its first job,
+    `jobs` (units and logs written from segments), `gaps` between its jobs, `tail` after its last
+    job until the last job of the run ended, and `end` (the index and the rest) after that."""
+    per_worker: dict[int, list[tuple[float, float]]] = {}
+    for result in summary.results:
+        for began, ended, pid in result.spans:
+            per_worker.setdefault(pid, []).append((began, ended))
+    if not per_worker:
+        return {}
+    last = max(e for spans in per_worker.values() for _, e in spans)
+    totals = dict.fromkeys(("start", "jobs", "gaps", "tail"), 0.0)
+    for spans in per_worker.values():
+        spans.sort()
+        totals["start"] += spans[0][0] - summary.started
+        totals["jobs"] += sum(e - b for b, e in spans)
+        totals["gaps"] += sum(b2 - e1 for (_, e1), (b2, _) in itertools.pairwise(spans))
+        totals["tail"] += last - spans[-1][1]
+    shares = {k: v / len(per_worker) for k, v in totals.items()}
+    shares["end"] = summary.started + wall - last
+    shares["index"] = summary.index_seconds
+    return shares
+
+
+def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None:
+    """Every job on its worker's row, coloured by its clip's weather; logs written from
+    segments hatched."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows: dict[int, int] = {}
+    colours = {"clear": "#f2c14e", "cloudy": "#9ab0c4", "overcast": "#6c7a89", "wet": "#4f9d8f",
+               "rain": "#2f5d9e", "fog": "#c9c3b8"}  # fmt: skip
+    figure, axes = plt.subplots(figsize=(11, 0.3 * 16 + 1.5))
+    for result in summary.results:
+        weather = conditions[result.scenario_id].weather.value
+        for k, (began, ended, pid) in enumerate(sorted(result.spans)):
+            row = rows.setdefault(pid, len(rows))
+            merge = k == len(result.spans) - 1 and len(result.spans) > 1
+            axes.barh(row, ended - began, left=began - summary.started, height=0.8,
+                      color=colours.get(weather, "#888888"), edgecolor="black", linewidth=0.3,
+                      hatch="///" if merge else None)  # fmt: skip
+    axes.axvline(summary.wall_seconds, color="red", linewidth=1)
+    axes.set_xlim(0, 1.02 * summary.wall_seconds)
+    axes.set_xlabel("seconds since the run began (red: the run's end, after the index)")
+    axes.set_ylabel("worker")
+    axes.set_yticks(range(len(rows)))
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colours.values()]
+    axes.legend(handles, list(colours), ncol=6, loc="upper center", bbox_to_anchor=(0.5, 1.12))
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def _condition_rows(summary: CollectSummary, conditions: dict) -> dict[tuple[str, str], dict]:

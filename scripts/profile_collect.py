@@ -1,12 +1,13 @@
 """Where one collector worker's time goes: the functions that cost most per frame, by cProfile.
 
     python scripts/profile_collect.py [--frames 30] [--lidar depth] [--post-process cpu]
-        [--top 25] [--out FILE]
+        [--top 25] [--out FILE] [--data DATA --clip ID]
 
 Collects the benchmark clip of `bench_collect.py` (the first synthetic 4-way clip with 40 or more
 agents) in this process, one worker, with the full sensor suite, under cProfile; prints the
 `--top` functions by their own time and by cumulative time, both in milliseconds per frame, and
-the stage table. `--out` also writes the raw profile (for `python -m pstats` or snakeviz).
+the stage table. `--data DATA --clip ID` profiles that clip of a data root instead (a curated one,
+e.g. of the real mix `drivee2e synth --clips 16 --seed 0`). `--out` also writes the raw profile (for `python -m pstats` or snakeviz).
 Run on a quiet machine: one worker, nothing competing for the core, is the number a worker costs
 when there are cores for all of them.
 """
@@ -52,10 +53,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--out", type=Path, default=None, help="also write the raw profile here")
+    parser.add_argument("--data", type=Path, default=None, help="a data root holding --clip")
+    parser.add_argument("--clip", default=None, help="the clip of --data to profile")
     args = parser.parse_args()
+    if (args.data is None) != (args.clip is None):
+        parser.error("--data and --clip go together")
     with tempfile.TemporaryDirectory() as folder:
-        intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
         root = Path(folder) / "data"
+        if args.data is None:
+            intersection_map, scenario = four_way_clip(args.seed, Path(folder) / "search")
+        else:
+            scenario = store.read_scenario(args.data, args.clip)
+            intersection_map = store.read_map(args.data, scenario.map_id)
         store.write_map(root, intersection_map)
         store.write_scenario(root, scenario)
         profiler = cProfile.Profile()

@@ -291,3 +291,15 @@ def test_the_host_plan_fits_cores_frames_memory_and_gpus():
     assert plan(frames=480, cores=2, memory=24.0, gpu=True, renderer="tiny").lidar == "raycast"
     assert plan(frames=0, cores=2, memory=1.0, gpu=False, renderer="tiny").workers == 1
     assert plan(frames=30, cores=2, memory=8.0, gpu=False).renderer in ("gl", "egl", "tiny")
+
+
+def test_the_command_line_starts_without_torch():
+    """Every `drivee2e` command imports `drivee2e_data.cli`, and so does each collection worker
+    (spawned workers import the command's module again): torch, Lightning and matplotlib are
+    for the commands that use them (they cost 3 s a process to import)."""
+    code = (
+        "import sys, drivee2e_data.cli; "
+        "print(sorted({'torch', 'lightning', 'matplotlib', 'torchvision'} & set(sys.modules)))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -1,4 +1,8 @@
-"""Imitation learning on the logs: `train`, `predict`, `openloop` (L2 and collisions), `export`."""
+"""Imitation learning on the logs: `train`, `predict`, `openloop` (L2 and collisions), `export`.
+
+torch, Lightning and the models are imported by the commands that run them, not with this
+module: every `drivee2e` command, and every collection worker (which re-imports the command's
+module), would otherwise pay 3 s for them."""
 
 from __future__ import annotations
 
@@ -8,10 +12,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from drivee2e_data import openloop, splits, store
-from drivee2e_data.agents import admlp, camera
-from drivee2e_data.agents.constant_velocity import ConstantVelocity
-from drivee2e_data.agents.training import TrainOptions
+from drivee2e_data import splits, store
 from drivee2e_data.cli.arguments import (
     _cell,
     _positive,
@@ -19,10 +20,7 @@ from drivee2e_data.cli.arguments import (
     _split_options,
 )
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.export.infos import export_infos
-from drivee2e_data.export.nuscenes import export_nuscenes
-from drivee2e_data.loaders.dataset import DriveE2EDataset
-from drivee2e_data.metrics.openloop import CONVENTIONS
+from drivee2e_data.metrics import CONVENTIONS
 
 PLANNERS = ("constant-velocity", "admlp", "camera")
 
@@ -89,13 +87,18 @@ def add_export(commands) -> None:  # type: ignore[no-untyped-def]
     )
 
 
-def _labels_only(args: argparse.Namespace) -> DriveE2EDataset:
+def _labels_only(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The split's samples without sensor data or map labels: what planners of the ego's
     state and the metrics read (map labels would be computed for every sample and never read)."""
+    from drivee2e_data.loaders.dataset import DriveE2EDataset
+
     return DriveE2EDataset(args.data, args.split, args.split_name, cameras=(), with_map=False)
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from drivee2e_data.agents import admlp, camera
+    from drivee2e_data.agents.training import TrainOptions
+
     epochs = args.epochs or (60 if args.model == "admlp" else 40)
     batch_size = args.batch_size or (64 if args.model == "admlp" else 32)
     options = TrainOptions(epochs, batch_size, args.learning_rate, args.seed)
@@ -122,6 +125,9 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    from drivee2e_data.agents import admlp, camera
+    from drivee2e_data.agents.constant_velocity import ConstantVelocity
+
     if args.model in ("admlp", "camera"):
         if args.checkpoint is None:
             raise DriveE2EError(
@@ -136,6 +142,9 @@ def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run_predict(args: argparse.Namespace) -> int:
+    from drivee2e_data import openloop
+    from drivee2e_data.agents import camera
+
     planner = _planner(args)
     if args.model == "camera":
         dataset = camera.dataset_for(args.data, args.split, args.split_name)
@@ -151,6 +160,8 @@ def run_predict(args: argparse.Namespace) -> int:
 
 
 def run_openloop(args: argparse.Namespace) -> int:
+    from drivee2e_data import openloop
+
     dataset = _labels_only(args)
     plans = openloop.read_predictions(args.predictions, dataset)
     with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
@@ -183,6 +194,9 @@ def run_openloop(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from drivee2e_data.export.infos import export_infos
+    from drivee2e_data.export.nuscenes import export_nuscenes
+
     with tqdm(unit="sample", desc=f"exporting {args.format}", disable=None) as bar:
         if args.format == "nuscenes":
             summary = export_nuscenes(

@@ -22,10 +22,10 @@ from torchmetrics import Metric
 
 from drivee2e_data.geometry import box_corners_2d
 from drivee2e_data.geometry import boxes_overlap as geometry_overlap
+from drivee2e_data.metrics import CONVENTIONS
 
 STEP_S = 0.5
 HORIZONS_S = (1.0, 2.0, 3.0)
-CONVENTIONS = ("stp3", "uniad")
 
 
 def l2_per_step(plan: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
