@@ -258,8 +258,11 @@ def mix(args: argparse.Namespace) -> None:
     lost = wall_breakdown(summary, wall)
     print("workers' wall time (s a worker): " + ", ".join(f"{k} {v:.1f}" for k, v in lost.items()))
     if args.timeline:
-        draw_timeline(summary, conditions, args.timeline)
-        print(f"timeline: {args.timeline}")
+        try:
+            draw_timeline(summary, conditions, args.timeline)
+            print(f"timeline: {args.timeline}")
+        except ImportError:
+            print("timeline: needs matplotlib (the viz extra); --json keeps the spans")
     if args.identical:
         print(f"byte-identical to a one-worker run: {identical} of {args.identical} clips")
     rows = _condition_rows(summary, conditions)
@@ -289,6 +292,7 @@ def mix(args: argparse.Namespace) -> None:
             "wall_over_even": wall / even, "valid_logs": valid, "clips": len(clips),
             "identical": identical, "peak_gib_per_worker": peak_gib, "mb_per_frame": mb,
             "conditions": {"/".join(k): v for k, v in rows.items()}, "wall_breakdown": lost,
+            "started": summary.started, "spans": {r.scenario_id: r.spans for r in summary.results},
         }, indent=1))  # fmt: skip
 
 
