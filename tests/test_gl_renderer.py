@@ -150,6 +150,27 @@ def test_the_same_frame_is_the_same_image_twice_and_in_another_world(site):
         assert np.array_equal(image.segmentation, first.segmentation)
 
 
+def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):
+    """Collection syncs each frame twice (the cameras with the ego hidden, the top view with it
+    shown); the actors whose pose did not change keep their placed vertices. The ego's body
+    shows in the second draw, and hiding it again gives the first image back."""
+    intersection_map, scenario = site
+    ego = scenario.ego
+    with World(intersection_map, scenario, renderer="gl") as world:
+        hidden = _front(world, 20)
+        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), None)  # shown
+        world.set_time(20)
+        eye = np.array([ego.x_m[20], ego.y_m[20], 30.0])  # from above, as the top view
+        above = world.render(eye, eye - np.array([0, 0, 1.0]), 160, 160, 40.0,
+                             segmentation=True, near_m=0.5, up=(1.0, 0.0, 0.0))  # fmt: skip
+        again = _front(world, 20)
+    ego_body = world.bodies[ego.track_id]
+    assert (above.segmentation == ego_body).sum() > 50  # the ego seen from above
+    assert not (hidden.segmentation == ego_body).any()
+    assert np.array_equal(again.rgb, hidden.rgb)
+    assert np.array_equal(again.segmentation, hidden.segmentation)
+
+
 def test_the_clips_lighting_shades_the_gl_world(site):
     """The world's `ShaderLook` reaches the image: a low, warm sun from another side changes
     it, and the clip's own look brings the first image back."""

@@ -298,6 +298,9 @@ class GLRenderer:
         # each model's last pose and the animation it was posed for: a frame syncs twice (the
         # cameras without the ego, the top view with it) and stationary actors keep their pose
         self.posed: dict[int, tuple[Animation, Posed]] = {}
+        # each model's vertices in the world at its last pose: a frame syncs twice (the cameras,
+        # then the top view with the ego shown), and only the ego moves between the two
+        self.placed: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
         self.synced: object = None
         self.shadowed: object = None
         self.lights = SceneLights()
@@ -409,13 +412,13 @@ class GLRenderer:
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
         self.models = dict(models)
-        self.posed = {}
+        self.posed, self.placed = {}, {}
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
         (pybullet reuses the ids of removed bodies)."""
         self.bodies = {}
-        self.posed = {}
+        self.posed, self.placed = {}, {}
         self.synced = None
         self.lit = None
 
@@ -443,13 +446,17 @@ class GLRenderer:
                 if position[2] < HIDDEN_BELOW_M:
                     continue
                 animation = animations.get(body, Animation())
+                placed = self.placed.get(body)
+                if placed is not None and placed[0] == (position, orientation, animation):
+                    parts.append(placed[1])
+                    continue
                 cached = self.posed.get(body)
                 if cached is None or cached[0] != animation:
                     cached = (animation, pose(self.models[body], animation))
                     self.posed[body] = cached
-                parts.append(
-                    model_vertices(self.models[body], cached[1], position, orientation, body)
-                )
+                vertices = model_vertices(self.models[body], cached[1], position, orientation, body)
+                self.placed[body] = ((position, orientation, animation), vertices)
+                parts.append(vertices)
             else:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
