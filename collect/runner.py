@@ -119,13 +119,14 @@ def _plan(
     Segment files a crashed run finished are kept and only the frames they lack are planned;
     a clip whose bundle cannot be read gets one whole unit, whose job reports why."""
     segments.remove_temporary(root)
-    clip_frames, covered, unreadable = {}, {}, []
+    clip_frames, covered, maps, unreadable = {}, {}, {}, []
     for scenario_id in scenario_ids:
         frames = frames_to_collect(root, scenario_id, options.max_frames)
         if frames is None:
             unreadable.append(WorkUnit(scenario_id, 0, 0, whole=True))
             continue
         clip_frames[scenario_id] = frames
+        maps[scenario_id] = store.read_meta(root, scenario_id).get("map_id", scenario_id)
         kept = []
         for path, header in segments.finished_segments(root, scenario_id, options):
             start, stop = header["start"], header["stop"]
@@ -134,7 +135,8 @@ def _plan(
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept
-    return [*segments.plan_units(clip_frames, covered, workers), *unreadable], clip_frames
+    units = segments.plan_units(clip_frames, covered, workers, maps)
+    return [*units, *unreadable], clip_frames
 
 
 def run_unit(

@@ -88,11 +88,14 @@ def plan_units(
     clip_frames: dict[str, int],
     covered: dict[str, list[tuple[int, int]]],
     workers: int,
+    maps: dict[str, str] | None = None,
 ) -> list[WorkUnit]:
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
     frame ranges in `covered` are already in segment files: every frame not covered, cut into
-    units of about `segment_length` frames, longest first (clips in the given order within a
-    length, so a worker often takes the next unit of the clip it has set up)."""
+    units of about `segment_length` frames, longest first. Within a length, units of clips on
+    one map (`maps`: scenario id -> map id) follow each other, in the order the maps first
+    appear, then the clips' order: a worker taking the next unit then mostly keeps the world it
+    has set up (`sim.world.world_for` rebuilds the twin only for another map)."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
     length = segment_length(sum(b - a for g in gaps.values() for a, b in g), workers)
     units = []
@@ -105,7 +108,12 @@ def plan_units(
                 continue
             bounds = [start + round(k * (stop - start) / pieces) for k in range(pieces + 1)]
             units.extend(WorkUnit(scenario_id, a, b) for a, b in itertools.pairwise(bounds))
-    return sorted(units, key=lambda u: -u.frames)  # stable: clip order kept within a length
+    maps = maps or {}
+    rank: dict[str, int] = {}
+    for scenario_id in clip_frames:
+        rank.setdefault(maps.get(scenario_id, scenario_id), len(rank))
+    # stable: clip order kept within a length and a map
+    return sorted(units, key=lambda u: (-u.frames, rank[maps.get(u.scenario_id, u.scenario_id)]))
 
 
 def uncovered(frames: int, ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:

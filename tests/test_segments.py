@@ -47,6 +47,16 @@ def test_a_set_is_cut_into_units_longest_first():
     assert len(many) == 64 and {u.frames for u in many} == {25}
 
 
+def test_units_of_one_length_are_grouped_by_map():
+    """Clips alternate between two maps; within a length their units go map by map (a worker
+    taking the next unit keeps its twin), longest still first."""
+    frames = {"a": 30, "b": 30, "c": 30, "d": 30, "e": 60}
+    maps = {"a": "m0", "b": "m1", "c": "m0", "d": "m1", "e": "m1"}
+    units = plan_units(frames, {}, workers=1, maps=maps)
+    assert [u.scenario_id for u in units] == ["e", "a", "c", "b", "d"]
+    assert [u.scenario_id for u in plan_units(frames, {}, workers=1)] == ["e", "a", "b", "c", "d"]
+
+
 def test_a_rerun_plans_only_the_frames_no_segment_holds():
     assert uncovered(100, [(50, 75), (0, 25)]) == [(25, 50), (75, 100)]
     assert uncovered(30, [(0, 30)]) == []
