@@ -279,7 +279,7 @@ def _init_worker() -> None:
     for name in ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, "1")
     import cv2
-    import torch  # spawn imported the parent's main module, torch with it: too late for the env
+    import torch  # reads OMP_NUM_THREADS when first imported (the command line imports none)
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
