@@ -14,7 +14,6 @@ import multiprocessing
 import os
 import queue
 import signal
-import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -377,27 +376,9 @@ def _run_pool(
                 unit = waiting.popleft()
                 running[pool.submit(_pooled_unit, root, unit, options)] = unit
 
-    # Ctrl-C is turned into KeyboardInterrupt by this loop, not wherever the main thread
-    # happens to be: raised inside a finaliser run by the garbage collector, Python reports it
-    # as ignored and the run goes on; a second Ctrl-C interrupts at once
-    interrupted = threading.Event()
-
-    def on_interrupt(number: int, frame: Any) -> None:
-        interrupted.set()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    previous = signal.getsignal(signal.SIGINT)
-    own_handler = (
-        threading.current_thread() is threading.main_thread()
-        and previous is signal.default_int_handler  # not where Ctrl-C is ignored or handled
-    )
-    if own_handler:
-        signal.signal(signal.SIGINT, on_interrupt)
     try:
         hand_out()
         while running:
-            if interrupted.is_set():
-                raise KeyboardInterrupt
             done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
             for future in done:
@@ -413,14 +394,9 @@ def _run_pool(
                     merges.append(clip)
             hand_out()
         _drain(frames_done, tick)
-        if interrupted.is_set():
-            raise KeyboardInterrupt
     except BaseException:
         stop_pool(pool)
         raise
-    finally:
-        if own_handler:
-            signal.signal(signal.SIGINT, previous)
     pool.shutdown()
 
 

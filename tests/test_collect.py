@@ -35,11 +35,14 @@ def _payloads(path: Path) -> dict[tuple[str, int], bytes]:
 
 
 def _start_collector(root: Path, arguments: list[str]) -> subprocess.Popen:
-    """`drivee2e collect` in a process group of its own, as a terminal would start it."""
+    """`drivee2e collect` in a process group of its own, as a terminal would start it: with
+    Ctrl-C's default action even where the tests run in the background (a shell without job
+    control starts background commands with SIGINT ignored, and Python keeps it ignored)."""
     command = [sys.executable, "-m", "drivee2e_data.cli", "collect", str(root), *arguments]
     return subprocess.Popen(
         [*command, *SMALL_COLLECT],
         start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
