@@ -6,8 +6,9 @@
 Collects the benchmark clip of `bench_collect.py` (the first synthetic 4-way clip with 40 or more
 agents) in this process, one worker, with the full sensor suite, under cProfile; prints the
 `--top` functions by their own time and by cumulative time, both in milliseconds per frame, and
-the stage table. `--data DATA --clip ID` profiles that clip of a data root instead (a curated one,
-e.g. of the real mix `drivee2e synth --clips 16 --seed 0`). `--out` also writes the raw profile (for `python -m pstats` or snakeviz).
+the stage table. `--data DATA --clip ID` profiles that clip of a data root instead (a curated
+one, e.g. of the real mix `drivee2e synth --clips 16 --seed 0`). `--out` also writes the raw
+profile (for `python -m pstats` or snakeviz).
 Run on a quiet machine: one worker, nothing competing for the core, is the number a worker costs
 when there are cores for all of them.
 """

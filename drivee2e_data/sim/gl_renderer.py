@@ -35,7 +35,6 @@ from drivee2e_data.sim.gl_vertices import (
     POSITION_ONLY,
     VERTEX_FORMAT,
     VERTEX_INPUTS,
-    Posed,
     _Body,
     model_vertices,
     static_vertices,
@@ -295,11 +294,9 @@ class GLRenderer:
         self.dynamic_groups: tuple[tuple[int, int, int], ...] = ()
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
-        # each model's last pose and the animation it was posed for: a frame syncs twice (the
-        # cameras without the ego, the top view with it) and stationary actors keep their pose
-        self.posed: dict[int, tuple[Animation, Posed]] = {}
-        # each model's vertices in the world at its last pose: a frame syncs twice (the cameras,
-        # then the top view with the ego shown), and only the ego moves between the two
+        # each model's vertices in the world at its last pose (position, orientation and
+        # animation): a frame syncs twice (the cameras, then the top view with the ego shown),
+        # only the ego moves between the two, and stationary actors keep their vertices
         self.placed: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
         self.synced: object = None
         self.shadowed: object = None
@@ -412,13 +409,13 @@ class GLRenderer:
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
         self.models = dict(models)
-        self.posed, self.placed = {}, {}
+        self.placed = {}
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
         (pybullet reuses the ids of removed bodies)."""
         self.bodies = {}
-        self.posed, self.placed = {}, {}
+        self.placed = {}
         self.synced = None
         self.lit = None
 
@@ -450,11 +447,8 @@ class GLRenderer:
                 if placed is not None and placed[0] == (position, orientation, animation):
                     parts.append(placed[1])
                     continue
-                cached = self.posed.get(body)
-                if cached is None or cached[0] != animation:
-                    cached = (animation, pose(self.models[body], animation))
-                    self.posed[body] = cached
-                vertices = model_vertices(self.models[body], cached[1], position, orientation, body)
+                posed = pose(self.models[body], animation)
+                vertices = model_vertices(self.models[body], posed, position, orientation, body)
                 self.placed[body] = ((position, orientation, animation), vertices)
                 parts.append(vertices)
             else:
