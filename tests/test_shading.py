@@ -15,14 +15,8 @@ from drivee2e_data.sim.conditions import (
     ShaderLook,
     headlight_raster,
 )
-from drivee2e_data.sim.gl_renderer import (
-    MATERIAL_GROUPS,
-    GLRenderer,
-    SceneLights,
-    by_material_group,
-    gl_available,
-    group_defines,
-)
+from drivee2e_data.sim.gl_batches import MATERIAL_GROUPS, group_defines, in_draw_order
+from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
 from drivee2e_data.sim.twin import TwinMesh
@@ -42,7 +36,8 @@ def _triangles(materials: list[int]) -> np.ndarray:
 def test_triangles_are_grouped_by_material_in_the_order_groups_first_appear():
     M = Material
     materials = [M.ASPHALT, M.PAINT, M.MARKING, M.ASPHALT, M.GLASS, M.FACADE, M.MARKING, 99]
-    grouped, ranges = by_material_group(_triangles(materials))
+    grouped, batches = in_draw_order(_triangles(materials))
+    ranges = batches.groups
     order = grouped[::3, 0].astype(int).tolist()
     # asphalt's group first (it came first), then paint and glass (one group), markings,
     # facades, then the unknown code; within a group the triangles keep their order

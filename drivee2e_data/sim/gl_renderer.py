@@ -30,6 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
+from drivee2e_data.sim.gl_batches import (
+    NOT_CASTING,
+    DrawBatches,
+    group_defines,
+    in_draw_order,
+)
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -39,7 +45,7 @@ from drivee2e_data.sim.gl_vertices import (
     model_vertices,
     static_vertices,
 )
-from drivee2e_data.sim.models import Animation, Material, ModelMesh, pose
+from drivee2e_data.sim.models import Animation, ModelMesh, pose
 from drivee2e_data.sim.twin import TwinMesh, WearRaster
 
 LOG = logging.getLogger(__name__)
@@ -53,26 +59,6 @@ SHADOW_HALF_WIDTH_M = 75.0
 SHADOW_DEPTH_M = 600.0
 MAX_SPOTS = 6  # the nearest vehicles' headlights light the scene (`SceneLights`)
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
-# The scene is drawn one group of materials at a time, each with the scene shader compiled for
-# those materials alone (`scene.frag`'s HAS_* and GLOSSY defines): llvmpipe, the CPU's GL, runs
-# every branch of a shader for every pixel (its "if" masks lanes, it does not jump), so a
-# shader holding every material's code costs the sum of them all on every pixel. Each group:
-# its materials (`Material` codes) and its defines; ground materials turn glossy when wet.
-MATERIAL_GROUPS: tuple[tuple[frozenset[int], tuple[str, ...]], ...] = (
-    (frozenset({Material.PAINT, Material.GLASS, Material.TYRE}), ("GLOSSY",)),
-    (frozenset({Material.MATTE, Material.LAMP, Material.STREET_LAMP}), ()),
-    (frozenset({Material.ASPHALT}), ("HAS_ASPHALT",)),
-    (frozenset({Material.MARKING}), ("HAS_MARKING",)),
-    (frozenset({Material.PAVEMENT}), ("HAS_PAVEMENT",)),
-    (frozenset({Material.GRASS}), ("HAS_GRASS",)),
-    (frozenset({Material.FOLIAGE}), ("HAS_FOLIAGE",)),
-    (frozenset({Material.FACADE}), ("HAS_FACADE", "GLOSSY")),
-)
-GROUND_MATERIALS = frozenset(
-    {Material.ASPHALT, Material.MARKING, Material.PAVEMENT, Material.GRASS}
-)
-ALL_MATERIALS = ("HAS_ASPHALT", "HAS_MARKING", "HAS_PAVEMENT", "HAS_GRASS", "HAS_FOLIAGE",
-                 "HAS_FACADE", "GLOSSY")  # fmt: skip
 
 
 def shader_source(name: str, defines: Sequence[str] = ()) -> str:
@@ -83,46 +69,6 @@ def shader_source(name: str, defines: Sequence[str] = ()) -> str:
         header = "#version 330\n" + "".join(f"#define {define}\n" for define in defines)
         return header + (SHADER_DIR / "common.glsl").read_text() + text
     return text
-
-
-def group_defines(group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
-    """The scene shader's defines for drawing material group `group` (an index into
-    `MATERIAL_GROUPS`; past its end: materials outside every group, all the code) in `variant`."""
-    if group >= len(MATERIAL_GROUPS):
-        return variant + ALL_MATERIALS
-    materials, defines = MATERIAL_GROUPS[group]
-    if "WET" in variant and materials <= GROUND_MATERIALS:
-        defines = (*defines, "GLOSSY")
-    return variant + defines
-
-
-_GROUP_OF = np.full(256, len(MATERIAL_GROUPS), np.int64)
-for _index, (_materials, _) in enumerate(MATERIAL_GROUPS):
-    _GROUP_OF[sorted(_materials)] = _index
-
-
-def by_material_group(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], tuple]:
-    """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles grouped by
-    material group, the groups in the order of their first triangle (so what was drawn first
-    mostly still is) and each group's triangles in their order; and the groups as
-    `(group, first vertex, vertex count)`."""
-    if not len(vertices):
-        return vertices, ()
-    triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
-    codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
-    groups = _GROUP_OF[codes]
-    present, first = np.unique(groups, return_index=True)
-    in_order = present[np.argsort(first)]
-    rank = np.empty(len(MATERIAL_GROUPS) + 1, np.int64)
-    rank[in_order] = np.arange(len(in_order))
-    order = np.argsort(rank[groups], kind="stable")
-    counts = np.bincount(rank[groups], minlength=len(in_order))
-    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
-    ranges = tuple(
-        (int(group), 3 * int(start), 3 * int(count))
-        for group, start, count in zip(in_order, starts, counts, strict=True)
-    )
-    return np.ascontiguousarray(triangles[order].reshape(-1, FLOATS_PER_VERTEX)), ranges
 
 
 def scene_variant(look: ShaderLook) -> tuple[str, ...]:
@@ -271,8 +217,7 @@ class GLRenderer:
             self.labels_program = _program("scene.vert", "labels.frag")
             self.sky_program = _program("sky.vert", "sky.frag")
             self.shadow_program = _program("shadow.vert", "shadow.frag")
-            vertices, self.static_groups = by_material_group(static_vertices(static_meshes))
-            self.static_count = len(vertices)
+            vertices, self.static_batches = in_draw_order(static_vertices(static_meshes))
             self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
             self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
@@ -290,8 +235,7 @@ class GLRenderer:
         self.lamp_light: LampRaster | None = None
         self.lit: object = None  # the state whose headlights the light texture holds
         self.wear = wear
-        self.dynamic_count = 0
-        self.dynamic_groups: tuple[tuple[int, int, int], ...] = ()
+        self.dynamic_batches = DrawBatches.empty()
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
         # each model's vertices in the world at its last pose (position, orientation and
@@ -455,7 +399,7 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        vertices, self.dynamic_groups = by_material_group(np.concatenate(parts))
+        vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts))
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
                 for key in [k for k in self.arrays if k[0] == "dynamic"]:
@@ -464,7 +408,6 @@ class GLRenderer:
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
-        self.dynamic_count = len(vertices)
         self.lights = lights or SceneLights()
         self.synced = state
 
@@ -483,32 +426,32 @@ class GLRenderer:
             self.framebuffers[(width, height)] = framebuffer
         return framebuffer
 
-    def _draw_geometry(self, program_key: object) -> None:
-        """Both buffers with the labels program (`program_key` "labels"), or with the scene
-        shader of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
+    def _draw_geometry(self, program_key: object, matrix: NDArray[np.float64]) -> None:
+        """Both buffers' batches that the view of `matrix` (world to clip space) may see: with
+        the labels program (`program_key` "labels") in as few draws as they allow, or with the
+        scene shader of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
         import moderngl
 
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
-        for buffer_name, count, groups in (
-            ("dynamic", self.dynamic_count, self.dynamic_groups),
-            ("static", self.static_count, self.static_groups),
-        ):
-            if not count:
+        for buffer_name, batches in (("dynamic", self.dynamic_batches),
+                                     ("static", self.static_batches)):  # fmt: skip
+            visible = batches.visible(matrix)
+            if not visible.any():
                 continue
             if buffer_name == "dynamic":
                 self.context.disable(moderngl.CULL_FACE)
             else:
                 self.context.enable(moderngl.CULL_FACE)
-            if program_key == "labels":
-                self._array(buffer_name, "labels").render(moderngl.TRIANGLES, vertices=count)
-                continue
-            for group, first, vertices in groups:
-                array = self._array(buffer_name, group_defines(group, program_key))
-                array.render(moderngl.TRIANGLES, vertices=vertices, first=first)
+            labels = program_key == "labels"
+            for group, first, vertices in batches.runs(visible, by_group=not labels):
+                key = "labels" if labels else group_defines(group, program_key)
+                self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
+                                                     first=first)  # fmt: skip
 
     def _shadow_pass(self, matrix: NDArray[np.float64]) -> None:
-        """The sun's depth over the focus into the shadow map (once per state)."""
+        """The sun's depth over the focus into the shadow map (once per state): what can cast a
+        shadow there (`gl_batches.NOT_CASTING` left out)."""
         import moderngl
 
         self.shadow_framebuffer.use()
@@ -516,10 +459,12 @@ class GLRenderer:
         self.context.enable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
         self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
-        if self.dynamic_count:
-            self._array("dynamic", "shadow").render(moderngl.TRIANGLES, vertices=self.dynamic_count)
-        if self.static_count:
-            self._array("static", "shadow").render(moderngl.TRIANGLES, vertices=self.static_count)
+        for buffer_name, batches in (("dynamic", self.dynamic_batches),
+                                     ("static", self.static_batches)):  # fmt: skip
+            draws = batches.runs(batches.visible(matrix), by_group=False, skip=NOT_CASTING)
+            for _, first, vertices in draws:
+                self._array(buffer_name, "shadow").render(moderngl.TRIANGLES, vertices=vertices,
+                                                          first=first)  # fmt: skip
 
     def draw(
         self,
@@ -566,13 +511,13 @@ class GLRenderer:
             if look == "labels":
                 self.context.enable(moderngl.DEPTH_TEST)
                 self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                self._draw_geometry("labels")
+                self._draw_geometry("labels", matrix)
             else:
                 # shadows, night, wet and fog are compiled in: the variant the look needs
                 variant = scene_variant(shader_look)
                 if shader_look.lamps_on:
                     self._light_texture(shader_look)
-                groups = {group for group, _, _ in (*self.dynamic_groups, *self.static_groups)}
+                groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
                 programs = [self._scene_program(group_defines(g, variant)) for g in sorted(groups)]
                 self._apply_look(programs, shader_look, camera_position, far_m,
                                  {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
@@ -584,7 +529,7 @@ class GLRenderer:
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
                 self.lamp_texture.use(location=2)
-                self._draw_geometry(variant)
+                self._draw_geometry(variant, matrix)
                 # the sky last, on the far plane, where nothing was drawn: the depth test spares
                 # shading the sky behind the scene
                 self.context.disable(moderngl.CULL_FACE)

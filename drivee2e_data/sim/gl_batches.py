@@ -1,0 +1,192 @@
+"""The order the GL renderer draws triangles in, and what each view skips.
+
+A vertex buffer's triangles are sorted into material groups (each drawn with the scene shader
+compiled for its materials alone: `MATERIAL_GROUPS`) and, inside a large group, into square
+cells of the ground plane. Each (group, cell) is a `DrawBatches` row with its bounding box; a
+view draws only the batches whose box meets its frustum (`DrawBatches.runs`). Skipping a batch
+changes no pixel: everything in it lies outside the view. On llvmpipe, the CPU's GL, every
+vertex of a draw is shaded and clipped on the calling thread whatever the view sees, so a camera
+that sees a fifth of the scene paid for all of it, thirteen views a frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
+from drivee2e_data.sim.models import Material
+
+# The scene is drawn one group of materials at a time, each with the scene shader compiled for
+# those materials alone (`scene.frag`'s HAS_* and GLOSSY defines): llvmpipe, the CPU's GL, runs
+# every branch of a shader for every pixel (its "if" masks lanes, it does not jump), so a
+# shader holding every material's code costs the sum of them all on every pixel. Each group:
+# its materials (`Material` codes) and its defines; ground materials turn glossy when wet.
+MATERIAL_GROUPS: tuple[tuple[frozenset[int], tuple[str, ...]], ...] = (
+    (frozenset({Material.PAINT, Material.GLASS, Material.TYRE}), ("GLOSSY",)),
+    (frozenset({Material.MATTE, Material.LAMP, Material.STREET_LAMP}), ()),
+    (frozenset({Material.ASPHALT}), ("HAS_ASPHALT",)),
+    (frozenset({Material.MARKING}), ("HAS_MARKING",)),
+    (frozenset({Material.PAVEMENT}), ("HAS_PAVEMENT",)),
+    (frozenset({Material.GRASS}), ("HAS_GRASS",)),
+    (frozenset({Material.FOLIAGE}), ("HAS_FOLIAGE",)),
+    (frozenset({Material.FACADE}), ("HAS_FACADE", "GLOSSY")),
+)
+GROUND_MATERIALS = frozenset(
+    {Material.ASPHALT, Material.MARKING, Material.PAVEMENT, Material.GRASS}
+)
+# The groups that cast no shadow: the road, its paint and the grass lie at ground level, below
+# everything they could shade (raised sidewalks stay casters: their kerbs shade the gutter).
+# Left out of the sun's shadow map, they no longer fill its 2048 x 2048 texels every state.
+NOT_CASTING = frozenset(
+    index
+    for index, (materials, _) in enumerate(MATERIAL_GROUPS)
+    if materials <= {Material.ASPHALT, Material.MARKING, Material.GRASS}
+)
+ALL_MATERIALS = ("HAS_ASPHALT", "HAS_MARKING", "HAS_PAVEMENT", "HAS_GRASS", "HAS_FOLIAGE",
+                 "HAS_FACADE", "GLOSSY")  # fmt: skip
+# Cells of 24 m: a view's frustum leaves most of a 400 m scene's cells out, and a group's cells
+# stay few enough that the draws a view makes (one per run of visible cells) cost less than the
+# vertices they skip. Groups under MIN_SPLIT_VERTICES are one batch (a draw's own cost is worth
+# more than their vertices); runs of visible batches closer than MERGE_GAP_VERTICES are drawn as
+# one (drawing the few vertices between costs less than a second draw).
+CELL_M = 24.0
+MIN_SPLIT_VERTICES = 3000
+MERGE_GAP_VERTICES = 1500
+_CELL_OFFSET = 1 << 15  # cell indices shifted positive (scenes span far less than 786 km)
+
+
+def group_defines(group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
+    """The scene shader's defines for drawing material group `group` (an index into
+    `MATERIAL_GROUPS`; past its end: materials outside every group, all the code) in `variant`."""
+    if group >= len(MATERIAL_GROUPS):
+        return variant + ALL_MATERIALS
+    materials, defines = MATERIAL_GROUPS[group]
+    if "WET" in variant and materials <= GROUND_MATERIALS:
+        defines = (*defines, "GLOSSY")
+    return variant + defines
+
+
+_GROUP_OF = np.full(256, len(MATERIAL_GROUPS), np.int64)
+for _index, (_materials, _) in enumerate(MATERIAL_GROUPS):
+    _GROUP_OF[sorted(_materials)] = _index
+
+# the eight corners of a unit box, as 0/1 choices of the low or high bound per axis
+_CORNER_CHOICE = np.array([[(k >> axis) & 1 for axis in range(3)] for k in range(8)], bool)
+
+
+@dataclass(frozen=True)
+class DrawBatches:
+    """A vertex buffer's batches in buffer order: each a contiguous run of whole triangles of
+    one material group (and one cell), with the bounding box of its vertices (world frame, m)."""
+
+    group: NDArray[np.int64]  # (B,) index into MATERIAL_GROUPS (its length: no group)
+    first: NDArray[np.int64]  # (B,) first vertex
+    count: NDArray[np.int64]  # (B,) vertices
+    low_m: NDArray[np.float64]  # (B, 3)
+    high_m: NDArray[np.float64]  # (B, 3)
+
+    @staticmethod
+    def empty() -> DrawBatches:
+        none = np.zeros(0, np.int64)
+        return DrawBatches(none, none, none, np.zeros((0, 3)), np.zeros((0, 3)))
+
+    @property
+    def groups(self) -> tuple[tuple[int, int, int], ...]:
+        """Each material group present as `(group, first vertex, vertex count)`, in buffer order
+        (a group's batches are contiguous)."""
+        ranges: list[tuple[int, int, int]] = []
+        for group, first, count in zip(self.group, self.first, self.count, strict=True):
+            if ranges and ranges[-1][0] == group:
+                ranges[-1] = (ranges[-1][0], ranges[-1][1], ranges[-1][2] + int(count))
+            else:
+                ranges.append((int(group), int(first), int(count)))
+        return tuple(ranges)
+
+    def visible(self, matrix: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(B,) whether each batch's box may show in the view of `matrix` (world to clip space,
+        4x4, perspective or orthographic): false only where all eight corners lie beyond one
+        of the frustum's six planes."""
+        if not len(self.group):
+            return np.zeros(0, bool)
+        corners = np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
+        clip = corners @ matrix[:3, :3].T + matrix[:3, 3]  # (B, 8, 3)
+        w = corners @ matrix[3, :3] + matrix[3, 3]  # (B, 8)
+        outside = np.zeros(len(self.group), bool)
+        for axis in range(3):
+            outside |= np.all(clip[..., axis] > w, axis=1)
+            outside |= np.all(clip[..., axis] < -w, axis=1)
+        return ~outside
+
+    def runs(
+        self, visible: NDArray[np.bool_], by_group: bool = True, skip: frozenset[int] = frozenset()
+    ) -> list[tuple[int, int, int]]:
+        """The draws for the `visible` batches, as `(group, first vertex, vertex count)`:
+        neighbouring visible batches joined (across groups too unless `by_group`: one program
+        for all), and runs less than `MERGE_GAP_VERTICES` apart joined with what lies between;
+        batches of the groups in `skip` left out."""
+        draws: list[tuple[int, int, int]] = []
+        skipped = np.isin(self.group, list(skip))
+        # skipped batches before each index: a draw never spans one, not even in a gap
+        barriers = np.concatenate(([0], np.cumsum(skipped)))
+        last = -1
+        for index in np.flatnonzero(visible & ~skipped):
+            group, first, count = (
+                int(self.group[index]),
+                int(self.first[index]),
+                int(self.count[index]),
+            )
+            if draws and barriers[index] == barriers[last]:
+                last_group, last_first, last_count = draws[-1]
+                gap = first - (last_first + last_count)
+                if (not by_group or last_group == group) and gap <= MERGE_GAP_VERTICES:
+                    draws[-1] = (last_group, last_first, first + count - last_first)
+                    last = index
+                    continue
+            draws.append((group, first, count))
+            last = index
+        return draws
+
+
+def in_draw_order(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], DrawBatches]:
+    """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles sorted into
+    batches: by material group, the groups in the order of their first triangle (so what was
+    drawn first mostly still is); inside a group of `MIN_SPLIT_VERTICES` or more, by the
+    `CELL_M` cell of each triangle's centroid (row by row); otherwise in their order."""
+    if not len(vertices):
+        return vertices, DrawBatches.empty()
+    triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
+    codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
+    groups = _GROUP_OF[codes]
+    present = np.flatnonzero(np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1))
+    first = [int(np.argmax(groups == group)) for group in present]
+    in_order = present[np.argsort(first)]
+    rank = np.empty(len(MATERIAL_GROUPS) + 1, np.int64)
+    rank[in_order] = np.arange(len(in_order))
+    # elementwise over the three corners: numpy's reductions over an axis of three are slow
+    corner = [triangles[:, k, :3] for k in range(3)]
+    centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
+    cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
+    cell_key = cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0]
+    small = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 < MIN_SPLIT_VERTICES
+    cell_key[small[groups]] = 0
+    key = rank[groups] * (4 * _CELL_OFFSET * _CELL_OFFSET) + cell_key
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    starts = np.flatnonzero(np.concatenate(([True], sorted_key[1:] != sorted_key[:-1])))
+    lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
+    highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
+    low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
+    high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
+    ordered = triangles[order]
+    counts = np.diff(np.append(starts, len(order)))
+    batches = DrawBatches(
+        group=groups[order][starts],
+        first=3 * starts.astype(np.int64),
+        count=3 * counts.astype(np.int64),
+        low_m=low,
+        high_m=high,
+    )
+    return np.ascontiguousarray(ordered.reshape(-1, FLOATS_PER_VERTEX)), batches

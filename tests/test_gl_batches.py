@@ -1,0 +1,144 @@
+"""The GL renderer's draw order and culling: triangles in material groups and cells with tight
+boxes, the frustum test on known boxes, the draws a view makes, and images unchanged by what a
+view skips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivee2e_data.sim import gl_batches
+from drivee2e_data.sim.gl_batches import (
+    CELL_M,
+    MERGE_GAP_VERTICES,
+    DrawBatches,
+    in_draw_order,
+)
+from drivee2e_data.sim.gl_renderer import gl_available, look_at, shadow_matrix
+from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
+from drivee2e_data.sim.models import Material
+from drivee2e_data.sim.world import World
+from tests.factories import front_view, synthetic_clip
+
+
+def _triangle_rows(centres: np.ndarray, material: int) -> np.ndarray:
+    """A small triangle (0.5 m) at each `(x, y)` centre, numbered in its first normal float."""
+    rows = np.zeros((3 * len(centres), FLOATS_PER_VERTEX), np.float32)
+    offsets = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.5, 1.0]])
+    for k, (x, y) in enumerate(centres):
+        rows[3 * k : 3 * k + 3, :3] = offsets + np.array([x, y, 0.0])
+        rows[3 * k : 3 * k + 3, 3] = k
+        rows[3 * k : 3 * k + 3, -1] = material
+    return rows
+
+
+def test_a_large_group_is_cut_into_cells_with_tight_boxes_and_a_small_one_is_not():
+    rng = np.random.default_rng(3)
+    spread = rng.uniform(-100.0, 100.0, size=(2000, 2))  # 6000 vertices: cut into cells
+    few = rng.uniform(-100.0, 100.0, size=(50, 2))  # 150 vertices: one batch
+    rows = np.concatenate([_triangle_rows(few, Material.ASPHALT),
+                           _triangle_rows(spread, Material.FOLIAGE)])  # fmt: skip
+    ordered, batches = in_draw_order(rows)
+    assert len(ordered) == len(rows)
+    np.testing.assert_array_equal(np.sort(ordered[:, 3]), np.sort(rows[:, 3]))
+    asphalt = [g for g, (m, _) in enumerate(gl_batches.MATERIAL_GROUPS) if Material.ASPHALT in m]
+    assert list(batches.group).count(asphalt[0]) == 1  # under MIN_SPLIT_VERTICES
+    assert batches.group[0] == asphalt[0]  # it came first
+    cells = len(batches.group) - 1
+    assert 64 <= cells <= 100  # 200 m / 24 m: 9 x 9 cells (less where a cell drew none)
+    assert np.array_equal(batches.first, np.concatenate(([0], np.cumsum(batches.count)[:-1])))
+    for low, high, first, count in zip(batches.low_m, batches.high_m, batches.first,
+                                       batches.count, strict=True):  # fmt: skip
+        points = ordered[first : first + count, :3]
+        np.testing.assert_allclose(points.min(axis=0), low)  # tight: the extremes of its own
+        np.testing.assert_allclose(points.max(axis=0), high)
+        if first == 0:
+            continue  # the uncut group
+        # one cell's triangles: their centroids within CELL_M of each other on each axis
+        centroids = ordered[first : first + count, :2].reshape(-1, 3, 2).mean(axis=1)
+        assert np.ptp(centroids, axis=0).max() < CELL_M
+    assert batches.groups[1] == (batches.group[1], 150, 6000)  # the cells make one group range
+
+
+def _perspective(eye, target, fov_deg=60.0, near=0.5, far=200.0) -> np.ndarray:
+    """A world-to-clip matrix (OpenGL's perspective) of a square view."""
+    view = look_at(np.asarray(eye, float), np.asarray(target, float), np.array([0.0, 0.0, 1.0]))
+    f = 1.0 / np.tan(np.radians(fov_deg) / 2)
+    projection = np.array([[f, 0, 0, 0], [0, f, 0, 0],
+                           [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)],
+                           [0, 0, -1, 0]])  # fmt: skip
+    return projection @ view
+
+
+def _boxes(centres: list[tuple[float, float, float]], half_m: float = 1.0) -> DrawBatches:
+    centre = np.array(centres, float)
+    count = np.full(len(centres), 3)
+    return DrawBatches(np.zeros(len(centres), np.int64), 3 * np.arange(len(centres)), count,
+                       centre - half_m, centre + half_m)  # fmt: skip
+
+
+def test_boxes_ahead_are_visible_and_boxes_behind_beside_or_beyond_are_not():
+    """From (0, 0, 2) looking along +x with a 60 degree view out to 200 m."""
+    matrix = _perspective([0, 0, 2], [10, 0, 2])
+    boxes = _boxes([(20, 0, 1), (-20, 0, 1), (20, 40, 1), (250, 0, 1), (20, 12.5, 1),
+                    (0.2, 0, 2)])  # fmt: skip
+    # ahead; behind; 63 degrees off the axis; past the far plane; 32 degrees off (its near
+    # corner inside the 30 degree half-angle); around the eye (its box holds the eye)
+    assert boxes.visible(matrix).tolist() == [True, False, False, False, True, True]
+
+
+def test_the_sun_s_square_culls_what_lies_outside_it():
+    matrix = shadow_matrix((0.0, 0.0, 1.0), (100.0, 0.0))  # 150 m square around (100, 0)
+    boxes = _boxes([(100, 0, 1), (170, 70, 1), (190, 0, 1), (100, -80, 1)])
+    assert boxes.visible(matrix).tolist() == [True, True, False, False]
+
+
+def test_runs_join_neighbours_and_short_gaps_but_never_span_a_skipped_group():
+    counts = np.array([300, 300, MERGE_GAP_VERTICES + 3, 300, 300, 300, 300])
+    first = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    group = np.array([0, 0, 0, 0, 1, 2, 6])
+    batches = DrawBatches(group, first, counts, np.zeros((7, 3)), np.ones((7, 3)))
+    visible = np.array([True, True, False, True, True, True, True])
+    f = first.tolist()
+    # 0 and 1 touch; 2 is a gap too long to draw; then 3, and 4 and 5 are other groups
+    assert batches.runs(visible) == [(0, 0, 600), (0, f[3], 300), (1, f[4], 300),
+                                     (2, f[5], 300), (6, f[6], 300)]  # fmt: skip
+    # one program for all: groups join, the long gap still splits
+    assert batches.runs(visible, by_group=False) == [(0, 0, 600), (0, f[3], 1200)]
+    # group 2 left out: it splits what it lay between, though 4 and 6 are only 300 apart
+    assert batches.runs(visible, by_group=False, skip=frozenset({2})) == [
+        (0, 0, 600), (0, f[3], 600), (6, f[6], 300)
+    ]  # fmt: skip
+    hidden = np.array([True, True, False, True, True, False, True])
+    assert batches.runs(hidden, by_group=False, skip=frozenset({2})) == [
+        (0, 0, 600), (0, f[3], 600), (6, f[6], 300)
+    ]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    return synthetic_clip(tmp_path_factory.mktemp("batches_site"))
+
+
+@pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
+def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
+    """The same frame drawn with the scene cut into cells (most of them skipped by the front
+    camera) and as one batch per material group (everything drawn): the same image."""
+    intersection_map, scenario = site
+    ego = scenario.ego
+    eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
+    heading = np.array([np.cos(ego.yaw_rad[20]), np.sin(ego.yaw_rad[20]), 0.0])
+    with World(intersection_map, scenario, renderer="gl") as world:
+        culled = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
+        batches = world.gl.static_batches
+        assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
+        skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))
+        assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
+    monkeypatch.setattr(gl_batches, "CELL_M", 1e6)
+    monkeypatch.setattr(gl_batches, "MIN_SPLIT_VERTICES", 1 << 40)
+    with World(intersection_map, scenario, renderer="gl") as world:
+        whole = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
+        assert len(world.gl.static_batches.group) == len(world.gl.static_batches.groups)
+    assert np.array_equal(culled.rgb, whole.rgb)
+    assert np.array_equal(culled.depth_m, whole.depth_m)
+    assert np.array_equal(culled.segmentation, whole.segmentation)
