@@ -600,12 +600,30 @@ def _float_texture(context, values: NDArray[np.float32]):
     return texture
 
 
+# The value each program's uniform was last given, by (program, name): a view sets some thirty
+# uniforms in each of up to eight programs, and most (the clip's look) are the same at every
+# view. Programs live as long as the process (`_program`), whichever renderer sets them.
+_UNIFORMS: dict[tuple[int, str], object] = {}
+
+
 def _set(program, name: str, value) -> None:
-    """A uniform's value, where the compiled program kept it (unused ones are dropped)."""
-    if name in program:
+    """A uniform's value, where the compiled program kept it (unused ones are dropped) and it
+    changed."""
+    if name not in program:
+        return
+    if isinstance(value, np.ndarray):
+        value = tuple(float(v) for v in value.ravel())
+    key = (program.glo, name)
+    if _UNIFORMS.get(key) != value:
         program[name].value = value
+        _UNIFORMS[key] = value
 
 
 def _set_matrix(program, name: str, matrix: NDArray) -> None:
-    if name in program:
-        program[name].write(np.asarray(matrix).T.astype(np.float32).tobytes())
+    if name not in program:
+        return
+    data = np.asarray(matrix).T.astype(np.float32).tobytes()
+    key = (program.glo, name)
+    if _UNIFORMS.get(key) != data:
+        program[name].write(data)
+        _UNIFORMS[key] = data
