@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivee2e_data.sim import gl_batches
+from drivee2e_data.sim import gl_batches, gl_renderer
 from drivee2e_data.sim.gl_batches import (
     CELL_M,
     MERGE_GAP_VERTICES,
@@ -123,22 +123,24 @@ def site(tmp_path_factory):
 @pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     """The same frame drawn with the scene cut into cells (most of them skipped by the front
-    camera) and as one batch per material group (everything drawn): the same image."""
+    camera: what a renderer on the CPU does) and as one batch per material group, all drawn
+    (what it does on a GPU): the same image."""
     intersection_map, scenario = site
     ego = scenario.ego
     eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
     heading = np.array([np.cos(ego.yaw_rad[20]), np.sin(ego.yaw_rad[20]), 0.0])
-    with World(intersection_map, scenario, renderer="gl") as world:
-        culled = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
-        batches = world.gl.static_batches
-        assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
-        skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))
-        assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
-    monkeypatch.setattr(gl_batches, "CELL_M", 1e6)
-    monkeypatch.setattr(gl_batches, "MIN_SPLIT_VERTICES", 1 << 40)
-    with World(intersection_map, scenario, renderer="gl") as world:
-        whole = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
-        assert len(world.gl.static_batches.group) == len(world.gl.static_batches.groups)
-    assert np.array_equal(culled.rgb, whole.rgb)
-    assert np.array_equal(culled.depth_m, whole.depth_m)
-    assert np.array_equal(culled.segmentation, whole.segmentation)
+    images = {}
+    for cull in (True, False):
+        monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda cull=cull: cull)
+        with World(intersection_map, scenario, renderer="gl") as world:
+            images[cull] = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
+            batches = world.gl.static_batches
+            if cull:
+                assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
+                skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))
+                assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
+            else:
+                assert len(batches.group) == len(batches.groups)
+    assert np.array_equal(images[True].rgb, images[False].rgb)
+    assert np.array_equal(images[True].depth_m, images[False].depth_m)
+    assert np.array_equal(images[True].segmentation, images[False].segmentation)

@@ -150,11 +150,13 @@ class DrawBatches:
         return draws
 
 
-def in_draw_order(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], DrawBatches]:
+def in_draw_order(
+    vertices: NDArray[np.float32], cells: bool = True
+) -> tuple[NDArray[np.float32], DrawBatches]:
     """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles sorted into
     batches: by material group, the groups in the order of their first triangle (so what was
-    drawn first mostly still is); inside a group of `MIN_SPLIT_VERTICES` or more, by the
-    `CELL_M` cell of each triangle's centroid (row by row); otherwise in their order."""
+    drawn first mostly still is); with `cells`, inside a group of `MIN_SPLIT_VERTICES` or more,
+    by the `CELL_M` cell of each triangle's centroid (row by row); otherwise in their order."""
     if not len(vertices):
         return vertices, DrawBatches.empty()
     triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
@@ -167,11 +169,13 @@ def in_draw_order(vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], D
     rank[in_order] = np.arange(len(in_order))
     # elementwise over the three corners: numpy's reductions over an axis of three are slow
     corner = [triangles[:, k, :3] for k in range(3)]
-    centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
-    cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
-    cell_key = cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0]
-    small = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 < MIN_SPLIT_VERTICES
-    cell_key[small[groups]] = 0
+    cell_key = np.zeros(len(triangles), np.int64)
+    if cells:
+        centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
+        cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
+        cell_key = cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0]
+        small = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 < MIN_SPLIT_VERTICES
+        cell_key[small[groups]] = 0
     key = rank[groups] * (4 * _CELL_OFFSET * _CELL_OFFSET) + cell_key
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]

@@ -149,6 +149,19 @@ def gl_renderer_name() -> str:
     return "" if context is None else str(context.info["GL_RENDERER"])
 
 
+# GL drivers that rasterise on the CPU: every vertex of a draw costs the calling thread there,
+# so views draw only the batches their frustum meets (`gl_batches`); on a GPU the vertices cost
+# next to nothing and the frustum tests and extra draws would cost more than they save
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast")
+
+
+def rasterises_on_cpu() -> bool:
+    """Whether this process's GL draws on the CPU (Mesa's llvmpipe, as on a machine without a
+    GPU)."""
+    name = gl_renderer_name().lower()
+    return any(software in name for software in SOFTWARE_RENDERERS)
+
+
 def look_at(eye: NDArray[np.float64], target: NDArray[np.float64], up: NDArray[np.float64]):
     """4x4 view matrix (OpenGL convention: the camera looks down its -z)."""
     forward = target - eye
@@ -203,6 +216,7 @@ class GLRenderer:
         lamps: Sequence[int] = (),
         street_lamps: Sequence[tuple[float, float, float]] = (),
         wear: WearRaster | None = None,
+        cull: bool | None = None,
     ) -> None:
         import moderngl
 
@@ -217,7 +231,11 @@ class GLRenderer:
             self.labels_program = _program("scene.vert", "labels.frag")
             self.sky_program = _program("sky.vert", "sky.frag")
             self.shadow_program = _program("shadow.vert", "shadow.frag")
-            vertices, self.static_batches = in_draw_order(static_vertices(static_meshes))
+            # cut into cells that each view tests against its frustum (None: where GL draws
+            # on the CPU); drawn whole otherwise
+            self.cull = rasterises_on_cpu() if cull is None else cull
+            vertices, self.static_batches = in_draw_order(static_vertices(static_meshes),
+                                                          self.cull)  # fmt: skip
             self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
             self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
             self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
@@ -399,7 +417,7 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts))
+        vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
                 for key in [k for k in self.arrays if k[0] == "dynamic"]:
@@ -436,7 +454,7 @@ class GLRenderer:
         # drawn two-sided (their thin parts), the twin with back faces culled
         for buffer_name, batches in (("dynamic", self.dynamic_batches),
                                      ("static", self.static_batches)):  # fmt: skip
-            visible = batches.visible(matrix)
+            visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
             if not visible.any():
                 continue
             if buffer_name == "dynamic":
@@ -461,7 +479,8 @@ class GLRenderer:
         self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
         for buffer_name, batches in (("dynamic", self.dynamic_batches),
                                      ("static", self.static_batches)):  # fmt: skip
-            draws = batches.runs(batches.visible(matrix), by_group=False, skip=NOT_CASTING)
+            visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
+            draws = batches.runs(visible, by_group=False, skip=NOT_CASTING)
             for _, first, vertices in draws:
                 self._array(buffer_name, "shadow").render(moderngl.TRIANGLES, vertices=vertices,
                                                           first=first)  # fmt: skip
