@@ -156,7 +156,8 @@ def in_draw_order(
     """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles sorted into
     batches: by material group, the groups in the order of their first triangle (so what was
     drawn first mostly still is); with `cells`, inside a group of `MIN_SPLIT_VERTICES` or more,
-    by the `CELL_M` cell of each triangle's centroid (row by row); otherwise in their order."""
+    by the `CELL_M` cell of each triangle's centroid (row by row), each batch with its box;
+    otherwise in their order, the boxes unbounded."""
     if not len(vertices):
         return vertices, DrawBatches.empty()
     triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
@@ -180,10 +181,14 @@ def in_draw_order(
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     starts = np.flatnonzero(np.concatenate(([True], sorted_key[1:] != sorted_key[:-1])))
-    lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
-    highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
-    low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
-    high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
+    if cells:
+        lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
+        highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
+        low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
+        high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
+    else:  # no boxes: every batch may show anywhere
+        low = np.full((len(starts), 3), -np.inf)
+        high = np.full((len(starts), 3), np.inf)
     ordered = triangles[order]
     counts = np.diff(np.append(starts, len(order)))
     batches = DrawBatches(
