@@ -16,6 +16,7 @@ AGENTS = {
     "constant-velocity": "drivee2e_data.agents.constant_velocity:ConstantVelocityAgent",
     "admlp": "drivee2e_data.agents.admlp:ADMLPAgent",
     "camera": "drivee2e_data.agents.camera:CameraAgent",
+    "tcp": "drivee2e_data.agents.tcp:TCPAgent",
 }
 
 

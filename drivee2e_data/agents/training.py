@@ -51,16 +51,20 @@ def extract(
 def fit(
     model: nn.Module,
     data: dict[str, torch.Tensor],
-    predict: Callable[[nn.Module, dict[str, torch.Tensor]], torch.Tensor],
+    predict: Callable[[nn.Module, dict[str, torch.Tensor]], Any],
     checkpoint: Path,
     options: TrainOptions,
     header: dict[str, Any],
     on_epoch: Callable[[int, float], None] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Train `model` on `data` (rows of tensors; `y` (N, T, 2) targets and `mask` (N, T) among
-    them), `predict(model, rows)` giving (B, T, 2); resumes from `checkpoint` when it holds an
-    earlier run of the same options. `header` (kind and shapes) goes into the checkpoint."""
+    them), `predict(model, rows)` giving (B, T, 2), or that and an auxiliary loss to add;
+    resumes from `checkpoint` when it holds an earlier run of the same options. `header` (kind
+    and shapes) goes into the checkpoint. The data stays where it is (the CPU); each batch goes
+    to `device`, the model lives there. The reported loss is the waypoints' L1 alone."""
     samples = len(data["y"])
+    model.to(device)
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
     state: dict[str, Any] = {"epoch": 0, "losses": []}
     saved = checkpoints.resume_state(checkpoint, asdict(options), samples)
@@ -79,16 +83,21 @@ def fit(
         total, count = 0.0, 0
         for start in range(0, samples, options.batch_size):
             rows = order[start : start + options.batch_size]
-            batch = {key: value[rows] for key, value in data.items()}
+            batch = {key: value[rows].to(device) for key, value in data.items()}
             mask = batch["mask"].float()[..., None]
-            error = (predict(model, batch) - batch["y"]).abs() * mask
+            predicted = predict(model, batch)
+            extra = torch.zeros((), device=device)
+            if isinstance(predicted, tuple):
+                predicted, extra = predicted
+            error = (predicted - batch["y"]).abs() * mask
             loss = error.sum() / mask.sum().clamp_min(1.0) / 2
             optimiser.zero_grad()
-            loss.backward()
+            (loss + extra).backward()
             optimiser.step()
             total, count = total + loss.item() * len(rows), count + len(rows)
         state = {"epoch": epoch + 1, "losses": [*state["losses"], total / count]}
-        document = {**header, "model": model.state_dict(), "optimiser": optimiser.state_dict()}
+        weights = {key: value.cpu() for key, value in model.state_dict().items()}
+        document = {**header, "model": weights, "optimiser": optimiser.state_dict()}
         checkpoints.save(
             checkpoint, {**document, "options": asdict(options), "samples": samples, **state}
         )

@@ -22,24 +22,32 @@ from drivee2e_data.cli.arguments import (
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.metrics import CONVENTIONS
 
-PLANNERS = ("constant-velocity", "admlp", "camera")
+PLANNERS = ("constant-velocity", "admlp", "camera", "tcp")
+EPOCHS = {"admlp": 60, "camera": 40, "tcp": 30}
+BATCH_SIZES = {"admlp": 64, "camera": 32, "tcp": 32}
+LEARNING_RATES = {"admlp": 1e-3, "camera": 1e-3, "tcp": 3e-4}
 
 
 def add_train(commands) -> None:  # type: ignore[no-untyped-def]
     """The `train` command's arguments."""
     train = commands.add_parser("train", help="train a baseline planner on a split")
-    train.add_argument("model", choices=("admlp", "camera"), help="which baseline")
+    train.add_argument("model", choices=("admlp", "camera", "tcp"), help="which baseline")
     train.add_argument("data", type=Path, help="data root (collected, split)")
     _split_options(train, "train")
     train.add_argument("--out", type=Path, required=True, help="checkpoint to write (resumes)")
     train.add_argument(
-        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 40"
+        "--epochs", type=_positive, default=None, help="default: admlp 60, camera 40, tcp 30"
     )
     train.add_argument(
-        "--batch-size", type=_positive, default=None, help="default: admlp 64, camera 32"
+        "--batch-size", type=_positive, default=None, help="default: admlp 64, others 32"
     )
-    train.add_argument("--learning-rate", type=float, default=1e-3)
+    train.add_argument(
+        "--learning-rate", type=float, default=None, help="default: tcp 3e-4, others 1e-3"
+    )
     train.add_argument("--seed", type=int, default=0)
+    train.add_argument(
+        "--device", default="auto", help="tcp: where to train (auto: cuda where there is one)"
+    )
 
 
 def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
@@ -50,7 +58,9 @@ def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
     predict.add_argument("data", type=Path, help="data root")
     _split_options(predict, "val")
     predict.add_argument("--model", choices=PLANNERS, required=True)
-    predict.add_argument("--checkpoint", type=Path, help="the model's checkpoint (admlp)")
+    predict.add_argument(
+        "--checkpoint", type=Path, help="the model's checkpoint (admlp, camera, tcp)"
+    )
     predict.add_argument("--out", type=Path, required=True, help="predictions Parquet to write")
 
 
@@ -96,14 +106,29 @@ def _labels_only(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from drivee2e_data.agents import admlp, camera
+    import functools
+
+    import torch
+
+    from drivee2e_data.agents import admlp, camera, tcp
     from drivee2e_data.agents.training import TrainOptions
 
-    epochs = args.epochs or (60 if args.model == "admlp" else 40)
-    batch_size = args.batch_size or (64 if args.model == "admlp" else 32)
-    options = TrainOptions(epochs, batch_size, args.learning_rate, args.seed)
+    epochs = args.epochs or EPOCHS[args.model]
+    batch_size = args.batch_size or BATCH_SIZES[args.model]
+    learning_rate = args.learning_rate or LEARNING_RATES[args.model]
+    options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
     if args.model == "camera":
         dataset, trainer = camera.dataset_for(args.data, args.split, args.split_name), camera.train
+    elif args.model == "tcp":
+        device = args.device
+        if device == "auto":
+            device = "cuda" if torch.cuda.is_available() else "cpu"
+        if device != "cpu" and not device.startswith("cuda"):
+            raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
+        if device.startswith("cuda") and not torch.cuda.is_available():
+            raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
+        dataset = tcp.dataset_for(args.data, args.split, args.split_name)
+        trainer = functools.partial(tcp.train, device=device)
     else:
         dataset, trainer = _labels_only(args), admlp.train
     with (
@@ -125,29 +150,31 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    from drivee2e_data.agents import admlp, camera
+    from drivee2e_data.agents import admlp, camera, tcp
     from drivee2e_data.agents.constant_velocity import ConstantVelocity
 
-    if args.model in ("admlp", "camera"):
-        if args.checkpoint is None:
-            raise DriveE2EError(
-                f"--model {args.model} needs --checkpoint (drivee2e train {args.model} writes one)"
-            )
-        return (
-            admlp.load(args.checkpoint)
-            if args.model == "admlp"
-            else camera.CameraPlanner(args.checkpoint)
+    if args.model == "constant-velocity":
+        return ConstantVelocity()
+    if args.checkpoint is None:
+        raise DriveE2EError(
+            f"--model {args.model} needs --checkpoint (drivee2e train {args.model} writes one)"
         )
-    return ConstantVelocity()
+    if args.model == "admlp":
+        return admlp.load(args.checkpoint)
+    if args.model == "tcp":
+        return tcp.TCPPlanner(args.checkpoint)
+    return camera.CameraPlanner(args.checkpoint)
 
 
 def run_predict(args: argparse.Namespace) -> int:
     from drivee2e_data import openloop
-    from drivee2e_data.agents import camera
+    from drivee2e_data.agents import camera, tcp
 
     planner = _planner(args)
     if args.model == "camera":
         dataset = camera.dataset_for(args.data, args.split, args.split_name)
+    elif args.model == "tcp":
+        dataset = tcp.dataset_for(args.data, args.split, args.split_name)
     else:
         dataset = _labels_only(args)
     with tqdm(

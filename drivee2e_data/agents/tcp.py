@@ -1,0 +1,204 @@
+"""A TCP/TransFuser-class camera baseline (after Wu et al., "Trajectory-guided Control
+Prediction for End-to-end Autonomous Driving", NeurIPS 2022, its trajectory branch): the three
+front cameras through a shared ResNet trunk (`agents/resnet.py`, ResNet-18's shape, randomly
+initialised), the ego's speed, the route's command and target point through a measurement
+encoder, and a GRU that rolls out the 2 Hz waypoints towards the target point; a speed head
+reads the image features alone (TCP's auxiliary: the speed must be seen, not only copied from
+the input). Trained with `drivee2e train tcp DATA [--device cuda]`.
+
+Images go through the Dataset's decoder, in training and in closed loop alike, as for the small
+camera policy (`agents/camera.py`), at `INPUT_SIZE`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents import training
+from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD, vector_features
+from drivee2e_data.agents.resnet import RESNET18_BLOCKS, ResNet
+from drivee2e_data.agents.training import TrainOptions, fit
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
+from drivee2e_data.loaders.dataset import DriveE2EDataset
+from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.sensors.rig import Rig
+
+# 256 x 144 per camera: TCP's front view is 900 x 256 over a wider field; three of ours side by
+# side are 768 x 144, a 1/6.25 scale of the 1600 x 900 cameras (a JPEG read at 1/4 in the DCT,
+# then area-resized)
+INPUT_SIZE = (256, 144)
+SPEED_LOSS_WEIGHT = 0.05  # TCP's weight of the speed head's L1 beside the waypoints'
+GRU_HIDDEN = 256
+TARGET_SCALE_M = 20.0  # the GRU's target-point input, as the measurement vector scales it
+
+
+class TCPPolicy(nn.Module):
+    """Images `(B, K, 3, H, W)` uint8 and the measurement vector `(B, 6)` (command one-hot,
+    speed / 10 m/s, target point / 20 m: `camera.vector_features`) to `steps` waypoints
+    `(B, T, 2)` in metres (ego frame) and the speed the images show `(B,)` in m/s."""
+
+    name = "tcp"
+
+    def __init__(
+        self,
+        cameras: int = 3,
+        steps: int = 6,
+        width: int = 64,
+        blocks: tuple[int, ...] = RESNET18_BLOCKS,
+    ) -> None:
+        super().__init__()
+        self.steps, self.width, self.blocks = steps, width, tuple(blocks)
+        self.trunk = ResNet(self.blocks, width)  # shared by the cameras
+        features = self.trunk.features
+        self.image = nn.Sequential(nn.Linear(cameras * features, 256), nn.ReLU())
+        self.measurements = nn.Sequential(
+            nn.Linear(6, 128), nn.ReLU(), nn.Linear(128, 128), nn.ReLU()
+        )
+        self.join = nn.Sequential(nn.Linear(256 + 128, GRU_HIDDEN), nn.ReLU())
+        # each step's input: the last waypoint and the target point relative to it (TCP's)
+        self.decoder = nn.GRUCell(4, GRU_HIDDEN)
+        self.step_out = nn.Linear(GRU_HIDDEN, 2)
+        self.speed = nn.Sequential(nn.Linear(256, 64), nn.ReLU(), nn.Linear(64, 1))
+        self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
+
+    def forward(
+        self, images: torch.Tensor, vector: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        batch, cameras = images.shape[:2]
+        pixels = images.flatten(0, 1).float() / 255.0
+        if self.training:  # a brightness gain per image, drawn from a counter saved with it
+            generator = torch.Generator().manual_seed(int(self.augment_step))
+            self.augment_step += 1
+            gain = torch.empty(batch * cameras, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
+            pixels = (pixels * gain.to(pixels.device)).clamp(0.0, 1.0)
+        features = self.trunk((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)
+        seen = self.image(features)
+        hidden = self.join(torch.cat([seen, self.measurements(vector)], 1))
+        target_m = vector[:, 4:6] * TARGET_SCALE_M
+        point = torch.zeros(batch, 2, device=vector.device, dtype=hidden.dtype)
+        waypoints = []
+        for _ in range(self.steps):
+            step_input = torch.cat([point, target_m - point], 1) / TARGET_SCALE_M
+            hidden = self.decoder(step_input, hidden)
+            point = point + self.step_out(hidden)
+            waypoints.append(point)
+        return torch.stack(waypoints, 1), self.speed(seen).squeeze(1)
+
+
+def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
+    """The split's samples as the policy reads them (front cameras at `INPUT_SIZE`)."""
+    return DriveE2EDataset(
+        root, split, split_name, cameras=FRONT_CAMERAS, image_size=INPUT_SIZE, with_map=False
+    )
+
+
+def extract(
+    dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
+) -> dict[str, torch.Tensor]:
+    """Images, measurement vectors, speeds, targets `y` and masks of every sample, in order."""
+
+    def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+        speed = batch["ego_status"][:, 6]
+        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
+        return {"images": batch["img"], "vector": vector, "speed": speed.float()}
+
+    return training.extract(dataset, inputs, 32, progress)
+
+
+def _predict(model: nn.Module, rows: dict[str, torch.Tensor]):  # type: ignore[no-untyped-def]
+    """The waypoints and the speed head's L1 loss, weighted (`training.fit`'s contract)."""
+    waypoints, speed = model(rows["images"], rows["vector"])
+    return waypoints, SPEED_LOSS_WEIGHT * (speed - rows["speed"]).abs().mean()
+
+
+def train(
+    dataset: DriveE2EDataset,
+    checkpoint: Path,
+    options: TrainOptions | None = None,
+    on_epoch: Callable[[int, float], None] | None = None,
+    on_sample: Callable[[int], None] | None = None,
+    device: str = "cpu",
+    width: int = 64,
+) -> dict[str, Any]:
+    """Train on every sample of `dataset` (from `dataset_for`) on `device`; returns the
+    checkpoint. `width`: the trunk's first stage's channels (64: ResNet-18)."""
+    options = options or TrainOptions(epochs=30, batch_size=32, learning_rate=3e-4)
+    if len(dataset) == 0:
+        raise DriveE2EError(
+            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
+        )
+    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != INPUT_SIZE:
+        raise DriveE2EError("the TCP policy trains on tcp.dataset_for(...) samples")
+    first = dataset.samples[0][0]
+    full_size = dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"]
+    data = extract(dataset, on_sample)
+    torch.manual_seed(options.seed)
+    model = TCPPolicy(len(FRONT_CAMERAS), data["y"].shape[1], width)
+    header = {"kind": TCPPolicy.name, "steps": model.steps, "width": width,
+              "blocks": list(model.blocks), "camera_size": list(full_size)}  # fmt: skip
+    return fit(model, data, _predict, checkpoint, options, header, on_epoch, device)
+
+
+def load(path: Path) -> tuple[TCPPolicy, tuple[int, int]]:
+    """The trained policy (on the CPU) and the camera image size its data was collected at."""
+    saved = checkpoints.load(path, TCPPolicy.name, "drivee2e train tcp")
+    model = TCPPolicy(len(FRONT_CAMERAS), saved["steps"], saved["width"], tuple(saved["blocks"]))
+    model.load_state_dict(saved["model"])
+    model.eval()
+    width, height = saved["camera_size"]
+    return model, (int(width), int(height))
+
+
+class TCPAgent:
+    """The policy in closed loop: the front cameras rendered at the size its training data was
+    collected at, decoded as the Dataset decodes them; waypoints to the PID controller."""
+
+    name = "tcp"
+    sensors = FRONT_CAMERAS
+
+    def __init__(self, checkpoint: Path | None = None) -> None:
+        if checkpoint is None:
+            raise DriveE2EError("agent tcp needs --checkpoint (drivee2e train tcp writes one)")
+        self.model, self.image_size = load(Path(checkpoint))
+
+    def setup(self, route: Route, rig: Rig | None) -> None:
+        del route, rig  # the target point in each observation carries the route
+
+    @torch.no_grad()
+    def act(self, observation: Observation) -> Waypoints:
+        images = np.stack(
+            [decode_cpu(observation.images[c], self.image_size, INPUT_SIZE) for c in FRONT_CAMERAS]
+        )
+        command = torch.zeros(1, 3)
+        command[0, int(observation.command) - 1] = 1.0
+        vector = vector_features(
+            command,
+            torch.tensor([observation.speed_mps]),
+            torch.as_tensor(np.asarray(observation.target_point_m), dtype=torch.float32),
+        )
+        plan, _ = self.model(torch.from_numpy(images)[None], vector)
+        return Waypoints(plan[0].double().numpy())
+
+
+class TCPPlanner:
+    """The policy as an open-loop planner of Dataset batches (from `dataset_for`)."""
+
+    name = "tcp"
+
+    def __init__(self, checkpoint: Path) -> None:
+        self.model, _ = load(Path(checkpoint))
+
+    @torch.no_grad()
+    def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        speed = batch["ego_status"][:, 6]
+        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
+        plan, _ = self.model(batch["img"], vector)
+        return plan.double()

@@ -1,0 +1,91 @@
+"""The TCP-class camera baseline: its ResNet trunk has ResNet-18's shape and starts each block
+as the identity, the policy learns a known plan, trains through the CLI (resuming), plans open
+loop and drives a clip in closed loop on the CPU."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from drivee2e_data.agents import tcp
+from drivee2e_data.agents.resnet import BasicBlock, ResNet
+from drivee2e_data.agents.training import TrainOptions, fit
+from drivee2e_data.cli import main
+
+
+def test_the_trunk_has_resnet18s_parameters_and_blocks_start_as_the_identity():
+    # ResNet-18 holds 11,689,512 parameters, 513,000 of them in its 1000-class layer
+    assert sum(p.numel() for p in ResNet().parameters()) == 11_689_512 - 513_000
+    assert ResNet().features == 512 and ResNet(width=16).features == 128
+    block = ResNet(width=8).body[4].eval()  # the first block: same size, same channels
+    assert isinstance(block, BasicBlock)
+    x = torch.rand(2, 8, 6, 6)  # non-negative: relu(x + 0) is x
+    assert torch.equal(block(x), x)
+    strided = BasicBlock(8, 16, 2)
+    assert strided(x).shape == (2, 16, 3, 3)
+
+
+def test_the_policy_learns_plans_that_follow_the_command(tmp_path: Path, monkeypatch):
+    """Eight samples whose future goes left (command left) or right (command right): a small
+    trunk fits them to decimetres, and its speed head learns the speed."""
+    torch.manual_seed(0)
+    count = 8
+    images = torch.randint(0, 255, (count, 3, 3, 32, 48), dtype=torch.uint8)
+    left = torch.arange(count) % 2 == 0
+    command = torch.zeros(count, 3)
+    command[left, 1] = 1.0  # left
+    command[~left, 0] = 1.0  # right
+    steps = torch.arange(1, 7, dtype=torch.float32)
+    y = torch.stack([steps * 2.0, torch.zeros(6)], 1).repeat(count, 1, 1)
+    y[left, :, 1], y[~left, :, 1] = 0.3 * steps, -0.3 * steps
+    speed = torch.full((count,), 4.0)
+    vector = torch.cat([command, speed[:, None] / 10.0, y[:, -1] / 20.0], 1)
+    data = {"images": images, "vector": vector, "speed": speed, "y": y,
+            "mask": torch.ones(count, 6, dtype=torch.bool)}  # fmt: skip
+    model = tcp.TCPPolicy(3, 6, width=8, blocks=(1, 1))
+    options = TrainOptions(epochs=150, batch_size=8, learning_rate=3e-3)
+    monkeypatch.setattr(tcp, "SPEED_LOSS_WEIGHT", 1.0)
+    saved = fit(model, data, tcp._predict, tmp_path / "tcp.pt", options, {"kind": "tcp"})
+    assert saved["losses"][-1] < 0.1 * saved["losses"][0]
+    model.eval()
+    with torch.no_grad():
+        plan, seen_speed = model(images, vector)
+    # a plan blind to the command would be 1.8 m off at 3 s on every sample
+    assert (plan - y).abs().max() < 0.5
+    assert torch.equal(plan[:, -1, 1] > 0, left)
+    assert (seen_speed - 4.0).abs().max() < 0.5
+
+
+def test_tcp_trains_resumes_plans_and_drives_a_clip(loader_root: Path, tmp_path: Path) -> None:
+    checkpoint = tmp_path / "tcp.pt"
+    train = ["train", "tcp", str(loader_root), "--out", str(checkpoint), "--epochs", "2",
+             "--batch-size", "8", "--device", "cpu"]  # fmt: skip
+    assert main(train) == 0
+    saved = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    assert saved["kind"] == "tcp" and saved["epoch"] == 2 and saved["samples"] == 14
+    assert saved["options"]["learning_rate"] == 3e-4
+    assert main([*train[:6], "3", *train[7:]]) == 0  # resumes: one more epoch
+    resumed = torch.load(checkpoint, map_location="cpu", weights_only=True)
+    assert resumed["epoch"] == 3 and resumed["losses"][:2] == saved["losses"]
+    plans = tmp_path / "plans.parquet"
+    predict = ["predict", str(loader_root), "--model", "tcp", "--checkpoint", str(checkpoint),
+               "--out", str(plans)]  # fmt: skip
+    assert main(predict) == 0 and plans.stat().st_size > 0
+    out = tmp_path / "run"
+    assert main(["evaluate", str(loader_root), "--split", "val", "--agent", "tcp",
+                 "--checkpoint", str(checkpoint), "--out", str(out)]) == 0  # fmt: skip
+    (episode,) = [json.loads(p.read_text()) for p in (out / "episodes").glob("*.json")]
+    assert episode["failure"] == "" and episode["steps"] > 10
+
+
+def test_a_device_that_is_not_there_is_one_clear_error(loader_root: Path, tmp_path: Path, capsys):
+    out = tmp_path / "tcp.pt"
+    for device, message in (("tpu", "expected auto, cpu, cuda or cuda:N"),
+                            ("cuda", "torch sees no CUDA device here")):  # fmt: skip
+        if device == "cuda" and torch.cuda.is_available():
+            continue
+        code = main(["train", "tcp", str(loader_root), "--out", str(out), "--device", device])
+        assert code != 0 and message in capsys.readouterr().err
+        assert not out.exists()
