@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from functools import partial
@@ -56,23 +56,39 @@ def synthesize(
     intersections: int | None = None,
     on_clip: Callable[[str, bool], None] | None = None,
     workers: int = 1,
+    only: Collection[str] | None = None,
 ) -> SynthReport:
     """Write `clips` synthetic scenarios and their maps under `root`; `on_clip(id, skipped)`.
 
     With `workers > 1` the clips are generated in that many processes; every clip depends only
-    on (seed, clip index), so the files are the same whatever the number of workers.
+    on (seed, clip index), so the files are the same whatever the number of workers, and with
+    `only` (clip ids of this set) just those clips are written, the same as in the whole set.
     """
     if clips < 1:
         raise ValueError(f"clips must be at least 1, got {clips}")
     count = intersections or synthetic.default_intersections(clips)
     if count < 1:
         raise ValueError(f"intersections must be at least 1, got {count}")
+    wanted = None
+    if only is not None:
+        ids = {synthetic.clip_id(seed, index): index for index in range(clips)}
+        unknown = sorted(set(only) - set(ids))
+        if unknown:
+            raise DriveE2EError(
+                f"--only: clip {unknown[0]!r} is not one of the {clips} clips of seed {seed} "
+                f"({synthetic.clip_id(seed, 0)} ... {synthetic.clip_id(seed, clips - 1)})"
+            )
+        wanted = {ids[scenario_id] for scenario_id in only}
     maps = []
     for site_index in range(min(count, clips)):
         site = _synthetic_site(seed, site_index)
         store.write_map(root, site.intersection_map)
         maps.append(site.intersection_map.map_id)
-    jobs = [(Path(root), seed, clip_index % count, clip_index) for clip_index in range(clips)]
+    jobs = [
+        (Path(root), seed, clip_index % count, clip_index)
+        for clip_index in range(clips)
+        if wanted is None or clip_index in wanted
+    ]
     written, skipped = [], []
     if workers <= 1:
         outcomes: Iterable[tuple[str, bool]] = (_synthesize_clip(*job) for job in jobs)

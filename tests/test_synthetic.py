@@ -43,6 +43,26 @@ def test_other_seed_gives_other_files(synthetic_root: Path, tmp_path: Path):
     assert seed0["maps/synth_s0_i00.json"] != seed1["maps/synth_s1_i00.json"]
 
 
+def test_only_some_clips_are_the_whole_sets_files(synthetic_root: Path, tmp_path: Path, capsys):
+    """`synth --only` writes the named clips of the set and nothing else, each byte-identical
+    to the whole set's; a clip outside the set is one clear error."""
+    from drivee2e_data.cli import main
+
+    out = tmp_path / "some"
+    args = ["synth", "--out", str(out), "--clips", "12", "--seed", "0"]
+    assert main([*args, "--only", "synth_s0_c0005", "synth_s0_c0002"]) == 0
+    some, original = _files(out), _files(synthetic_root)
+    assert sorted(store.scenario_ids(out)) == ["synth_s0_c0002", "synth_s0_c0005"]
+    assert {name for name in some if name.startswith("maps/")} == {
+        name for name in original if name.startswith("maps/")
+    }
+    for name, content in some.items():
+        assert original[name] == content, name
+    assert main([*args, "--only", "synth_s0_c0012"]) != 0
+    error = capsys.readouterr().err
+    assert "synth_s0_c0012" in error and "is not one of the 12 clips of seed 0" in error
+
+
 def test_rerun_skips_finished_clips(synthetic_root: Path):
     before = {p: p.stat().st_mtime_ns for p in synthetic_root.rglob("*.parquet")}
     report = pipeline.synthesize(synthetic_root, clips=2, seed=0)

@@ -49,6 +49,13 @@ def add_synth(commands) -> None:  # type: ignore[no-untyped-def]
         "--workers", type=_positive, default=1, help="processes generating clips (default 1)"
     )
     synth.add_argument(
+        "--only",
+        nargs="+",
+        metavar="ID",
+        default=None,
+        help="these clips of the --clips set only (the same files as in the whole set)",
+    )
+    synth.add_argument(
         "--recording-seconds",
         type=_positive_float,
         default=None,
@@ -119,7 +126,8 @@ def run_synth(args: argparse.Namespace) -> int:
         if cut is not None:
             print("\n".join(cut.lines()))
         return 0
-    with tqdm(total=args.clips, unit="clip", desc="synthesising", disable=None) as bar:
+    total = args.clips if args.only is None else len(set(args.only))
+    with tqdm(total=total, unit="clip", desc="synthesising", disable=None) as bar:
         report = pipeline.synthesize(
             args.out,
             args.clips,
@@ -127,6 +135,7 @@ def run_synth(args: argparse.Namespace) -> int:
             args.intersections,
             on_clip=lambda scenario_id, skipped: bar.update(1),
             workers=args.workers,
+            only=args.only,
         )
     print(
         f"{len(report.written)} clips written, {len(report.skipped)} already present, "
