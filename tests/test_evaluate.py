@@ -13,6 +13,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
@@ -63,6 +64,46 @@ def test_evaluate_writes_episodes_summary_and_table(three_clips: Path, tmp_path:
     assert main([*args, "--agent", "admlp"]) == 2
     assert main([*args, "--agent", "camera", "--checkpoint", str(record)]) == 2
     assert main([*args, "--agent", "no_such_module:Agent"]) == 2
+
+
+def test_record_mp4_is_the_front_camera_beside_the_top_view_at_every_step(
+    three_clips: Path, tmp_path: Path
+) -> None:
+    import cv2
+
+    from drivee2e_data.evaluate import video
+
+    scenario_id = store.scenario_ids(three_clips)[0]
+    out = tmp_path / "run"
+    assert main(["evaluate", str(three_clips), "--split", "all", "--only", scenario_id,
+                 "--agent", "constant-velocity", "--record", "mp4", "--out", str(out)]) == 0  # fmt: skip
+    (row,) = episodes(out).values()
+    capture = cv2.VideoCapture(str(out / "records" / f"{scenario_id}.mp4"))
+    frames = []
+    ok, image = capture.read()
+    while ok:
+        frames.append(image)
+        ok, image = capture.read()
+    assert len(frames) == row["steps"]
+    assert frames[0].shape == (video.FRONT_SIZE[1], video.FRONT_SIZE[0] + video.TOP_PX, 3)
+    # the ego's box outline (green) around the top view's centre, in the first frame
+    top = frames[0][:, video.FRONT_SIZE[0] :].astype(int)
+    green = (top[..., 1] > 150) & (top[..., 0] < 140) & (top[..., 2] < 140)
+    rows, columns = np.nonzero(green)
+    centre = video.TOP_PX / 2
+    assert abs(np.median(rows) - centre) < 25 and abs(np.median(columns) - centre) < 25
+    assert not (out / "records" / f".{scenario_id}.mp4.partial.mp4").exists()
+
+
+def test_top_view_pixels_put_the_heading_up_and_the_left_to_the_left() -> None:
+    from drivee2e_data.evaluate import video
+
+    scale = video.TOP_PX / (2 * video.TOP_HALF_WIDTH_M)
+    centre = video.TOP_PX / 2
+    # the ego at (5, 5) heading north (+y): 10 m north is up, 10 m west is left
+    pixels = video.top_view_pixels(np.array([[5.0, 15.0], [-5.0, 5.0]]), 5.0, 5.0, np.pi / 2)
+    assert pixels.tolist() == [[centre, round(centre - 10 * scale)],
+                               [round(centre - 10 * scale), centre]]  # fmt: skip
 
 
 def test_same_agent_same_seed_same_scores(three_clips: Path, tmp_path: Path) -> None:

@@ -45,7 +45,15 @@ def add_evaluate(commands) -> None:  # type: ignore[no-untyped-def]
         help="apply LB2's minimum-speed penalty (off by default)",
     )
     evaluate.add_argument("--workers", type=_positive, default=1, help="processes (default 1)")
-    evaluate.add_argument("--record", action="store_true", help="write RUN/records/<clip>.mcap")
+    evaluate.add_argument(
+        "--record",
+        nargs="?",
+        const="mcap",
+        default="",
+        choices=("mcap", "mp4"),
+        help="write RUN/records/<clip>.mcap (the episode for Foxglove; the default kind) or "
+        "<clip>.mp4 (the front camera beside the top view with the driven and logged paths)",
+    )
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--renderer", choices=RENDERERS, default="auto")
     evaluate.add_argument(

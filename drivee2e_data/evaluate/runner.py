@@ -53,7 +53,7 @@ class EvaluationOptions:
     reactive: bool = False
     variant: str = Variant.COMPLETE.value
     min_speed: bool = False
-    record: bool = False
+    record: str = ""  # "" (none), "mcap" or "mp4": RUN/records/<clip>.<kind>
     seed: int = 0
     renderer: str = "auto"
     step_timeout_s: float = 30.0
@@ -181,14 +181,20 @@ def evaluate_clip(
             agent,
             EpisodeOptions(options.reactive, options.min_speed, removed or frozenset()),
             world=world,
-            keep_trace=options.record,
+            keep_trace=bool(options.record),
         )
         result = episode.run()
-        if options.record:
+        if options.record == "mcap":
             from drivee2e_data.evaluate.record import write_record
 
             write_record(out / RECORDS_FOLDER / f"{scenario_id}.mcap", scenario, intersection_map,
                          result, episode.route_xy, episode.bicycle)  # fmt: skip
+        elif options.record == "mp4":
+            from drivee2e_data.evaluate.video import write_video
+
+            world = world or _world_for(root, scenario, options.renderer)
+            write_video(out / RECORDS_FOLDER / f"{scenario_id}.mp4", world, scenario, result,
+                        episode.route_xy, episode.motion.z_m, episode.bicycle)  # fmt: skip
         row = result_row(scenario, result, options, len(removed or ()))
     except (DriveE2EError, ValueError, KeyError, OSError) as error:  # this clip only
         row = {"scenario_id": scenario_id, "status": "error", "failure": str(error)}
