@@ -5,7 +5,7 @@
 #   bash scripts/benchmark.sh OUT
 # Settings (environment):
 #   SIZES="25 50 100 200"  training subsets (clips; nested)      VAL=40  val clips scored
-#   SPREAD_SIZE=<largest>  the size trained with a second seed (run-to-run spread)
+#   SPREAD_SIZE=<largest>  the size trained with a second seed (run-to-run spread; none: no)
 #   EPOCHS_ADMLP=60 EPOCHS_CAMERA=40 EPOCHS_TCP=30  DEVICE=auto (tcp: cuda where there is one)
 #   WORKERS=auto (collection)  EVAL_WORKERS=<cores>  SYNTH_WORKERS=<cores>  SENSOR_HZ=2
 #   MANIFEST=splits/synthetic-800.csv  DRIVEE2E=drivee2e (the command)  PYTHON=python3
@@ -92,8 +92,10 @@ for size in $SIZES; do
         train "$model" "$size" 0
     done
 done
-for model in camera tcp; do
-    train "$model" "$SPREAD_SIZE" 1
-done
+if [ "$SPREAD_SIZE" != none ]; then
+    for model in camera tcp; do
+        train "$model" "$SPREAD_SIZE" 1
+    done
+fi
 mv "$OUT/times.tsv.partial" "$OUT/times.tsv"
 "$PYTHON" "$HERE/benchmark_report.py" "$OUT"

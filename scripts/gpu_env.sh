@@ -4,7 +4,8 @@
 # GPU environment was made"). Run from the repository root with these folders beside it:
 #   .gl/   Debian's GL loader packages (libegl1 libglvnd0 libopengl0 libgl1 libglx0 libgles2)
 #   .whl/  Python 3.12 wheels: mcap, mcap-protobuf-support, foxglove-schemas-protobuf, shapely,
-#          pyproj, lz4, zstandard, moderngl, glcontext
+#          pyproj, lz4, zstandard, moderngl, glcontext; torchmetrics and lightning-utilities (train,
+#          predict, openloop)
 #   .pb/   the pybullet 3.2.7 sdist with examples/pybullet/gym/{pybullet_data,pybullet_envs}
 #          removed (pybullet-3.2.7.tar.gz)
 # Then: source /tmp/drivee2e_env (PYTHONPATH and NVIDIA's EGL vendor file) and run the scripts

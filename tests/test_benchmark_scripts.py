@@ -1,0 +1,67 @@
+"""Benchmark v1's helpers: nested, behaviour-stratified subsets of the committed 800-clip
+manifest with one val subset, and Kendall's tau on known rankings."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+REPOSITORY = Path(__file__).resolve().parent.parent
+MANIFEST = REPOSITORY / "splits" / "synthetic-800.csv"
+
+
+def _script(name: str):  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location(name, REPOSITORY / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def test_subsets_are_nested_stratified_and_share_their_val_clips(tmp_path: Path) -> None:
+    out = tmp_path / "manifests"
+    command = [sys.executable, str(REPOSITORY / "scripts" / "benchmark_subsets.py"),
+               str(MANIFEST), "--sizes", "25", "100", "400", "--val", "40", "--out", str(out)]  # fmt: skip
+    subprocess.run(command, check=True, capture_output=True)
+    manifest = _rows(MANIFEST)
+    shares = Counter(r["category"] for r in manifest if r["split"] == "train")
+    subsets = {n: _rows(out / f"train-{n}.csv") for n in (25, 100, 400)}
+    train = {n: {r["scenario_id"] for r in rows if r["split"] == "train"} for n, rows in
+             subsets.items()}  # fmt: skip
+    val = {n: {r["scenario_id"] for r in rows if r["split"] == "val"} for n, rows in
+           subsets.items()}  # fmt: skip
+    assert [len(train[n]) for n in (25, 100, 400)] == [25, 100, 400]
+    assert train[25] <= train[100] <= train[400]
+    assert val[25] == val[100] == val[400] and len(val[25]) == 40
+    by_id = {r["scenario_id"]: r for r in manifest}
+    for n in (25, 100):
+        counts = Counter(by_id[i]["category"] for i in train[n])
+        for category, total in shares.items():  # each category within a clip of its share
+            assert abs(counts[category] - n * total / 400) <= 1.0, (n, category)
+    # the rows are the manifest's own, and clips.txt names every clip any subset needs
+    assert all(by_id[r["scenario_id"]] == {**r} for r in subsets[100])
+    needed = set((out / "clips.txt").read_text().split())
+    assert needed == train[400] | val[25]
+    again = tmp_path / "again"
+    subprocess.run([*command[:-1], str(again)], check=True, capture_output=True)
+    assert (again / "train-100.csv").read_bytes() == (out / "train-100.csv").read_bytes()
+
+
+def test_kendall_tau_on_known_rankings() -> None:
+    tau = _script("benchmark_report").kendall_tau
+    assert tau([1, 2, 3, 4], [10, 20, 30, 40]) == pytest.approx(1.0)
+    assert tau([1, 2, 3, 4], [40, 30, 20, 10]) == pytest.approx(-1.0)
+    # one swapped pair of six: (5 - 1) / 6
+    assert tau([1, 2, 3, 4], [10, 20, 40, 30]) == pytest.approx(4 / 6)
+    # a tie in the first: tau-b, (5 - 0) / sqrt(5 * 6)
+    assert tau([1, 1, 3, 4], [10, 20, 30, 40]) == pytest.approx(5 / 30**0.5)
