@@ -6,6 +6,7 @@
 # Settings (environment):
 #   SIZES="25 50 100 200"  training subsets (clips; nested)      VAL=40  val clips scored
 #   SPREAD_SIZE=<largest>  the size trained with a second seed (run-to-run spread; none: no)
+#   MODELS="admlp camera tcp"  the trained baselines   REFERENCES="expert constant-velocity"
 #   EPOCHS_ADMLP=60 EPOCHS_CAMERA=40 EPOCHS_TCP=30  DEVICE=auto (tcp: cuda where there is one)
 #   WORKERS=auto (collection)  EVAL_WORKERS=<cores>  SYNTH_WORKERS=<cores>  SENSOR_HZ=2
 #   MANIFEST=splits/synthetic-800.csv  DRIVEE2E=drivee2e (the command)  PYTHON=python3
@@ -67,9 +68,12 @@ openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]
 }
 
 VAL_MANIFEST="$OUT/manifests/train-$SMALLEST.csv"  # every manifest holds the same val clips
-stage "closedloop expert" evaluate expert expert "$VAL_MANIFEST"
-stage "closedloop constant-velocity" evaluate constant-velocity constant-velocity "$VAL_MANIFEST"
-stage "openloop constant-velocity" openloop constant-velocity constant-velocity "$VAL_MANIFEST"
+for reference in ${REFERENCES-expert constant-velocity}; do
+    stage "closedloop $reference" evaluate "$reference" "$reference" "$VAL_MANIFEST"
+    if [ "$reference" != expert ]; then  # the expert reads the logged future: no open loop
+        stage "openloop $reference" openloop "$reference" "$reference" "$VAL_MANIFEST"
+    fi
+done
 
 train() {  # train MODEL SIZE SEED
     local model="$1" size="$2" seed="$3" epochs
@@ -88,12 +92,13 @@ train() {  # train MODEL SIZE SEED
 }
 
 for size in $SIZES; do
-    for model in admlp camera tcp; do
+    for model in ${MODELS:-admlp camera tcp}; do
         train "$model" "$size" 0
     done
 done
 if [ "$SPREAD_SIZE" != none ]; then
-    for model in camera tcp; do
+    for model in ${MODELS:-admlp camera tcp}; do
+        [ "$model" = admlp ] && continue  # the image models' spread
         train "$model" "$SPREAD_SIZE" 1
     done
 fi
