@@ -186,3 +186,63 @@ def test_the_clips_lighting_shades_the_gl_world(site):
     difference = warm.astype(int) - first.astype(int)
     assert np.abs(difference).mean() > 2.0
     assert difference[..., 2].mean() < difference[..., 0].mean()  # less blue than red
+
+
+def _low_sun_behind(world: World, frame: int) -> ShaderLook:
+    """The clip's look with shadows on and the sun 15 degrees up behind the ego at `frame`
+    (its shadow falls ahead, into the front camera's view)."""
+    yaw = float(world.scenario.ego.yaw_rad[frame])
+    elevation = np.radians(15.0)
+    towards_sun = (-np.cos(yaw) * np.cos(elevation), -np.sin(yaw) * np.cos(elevation),
+                   np.sin(elevation))  # fmt: skip
+    return replace(world.look, light_direction=tuple(float(v) for v in towards_sun),
+                   sun_rgb=(0.9, 0.9, 0.9), shadows=True)  # fmt: skip
+
+
+def test_a_frames_cameras_and_top_view_share_one_shadow_map(site, monkeypatch):
+    """The cameras (the ego hidden but casting its shadow) and the top view (the ego shown) of
+    a frame cast the same shadows: one shadow pass for both, and the top view is the image a
+    shadow map drawn afresh for it gives."""
+    intersection_map, scenario = site
+    ego = scenario.ego
+    passes = []
+    original = GLRenderer._shadow_pass
+    monkeypatch.setattr(GLRenderer, "_shadow_pass",
+                        lambda self, matrix: (passes.append(1), original(self, matrix)))  # fmt: skip
+    with World(intersection_map, scenario, renderer="gl") as world:
+        world.gl.set_look(_low_sun_behind(world, 20))
+        _front(world, 20, segmentation=False)
+        assert len(passes) == 1
+        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), None)  # shown
+        world.set_time(20)
+        eye = np.array([ego.x_m[20], ego.y_m[20], 30.0])
+
+        def above():  # type: ignore[no-untyped-def]
+            return world.render(eye, eye - np.array([0, 0, 1.0]), 160, 160, 40.0, near_m=0.5,
+                                up=(1.0, 0.0, 0.0), look="plain").rgb  # fmt: skip
+
+        shared = above()
+        assert len(passes) == 1  # the cameras' map
+        world.gl.shadowed = None
+        fresh = above()
+        assert len(passes) == 2
+    assert np.array_equal(shared, fresh)
+
+
+def test_the_ego_casts_its_shadow_into_its_own_front_camera(site):
+    """With the sun low behind the ego, its front camera sees the ego's shadow on the road
+    ahead: pixels of the lower half darker than the same frame without the ego casting, and no
+    pixel brighter."""
+    intersection_map, scenario = site
+    with World(intersection_map, scenario, renderer="gl") as world:
+        world.gl.set_look(_low_sun_behind(world, 20))
+        with_shadow = _front(world, 20, segmentation=False).rgb.astype(int)
+        world.scene_lights = replace(world.scene_lights, casters=(), shadow_key=None)
+        world.state += 1
+        eye = np.array([scenario.ego.x_m[20], scenario.ego.y_m[20], 1.6])
+        yaw = scenario.ego.yaw_rad[20]
+        target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        without = world.render(eye, target, 320, 180, 40.0, near_m=0.5).rgb.astype(int)
+    darker = with_shadow.sum(axis=2) < without.sum(axis=2) - 6
+    assert darker[90:].sum() > 200 and darker[:90].sum() == 0
+    assert not (with_shadow.sum(axis=2) > without.sum(axis=2) + 3).any()

@@ -45,6 +45,9 @@ NOT_CASTING = frozenset(
     for index, (materials, _) in enumerate(MATERIAL_GROUPS)
     if materials <= {Material.ASPHALT, Material.MARKING, Material.GRASS}
 )
+# the group of bodies drawn into the sun's shadow map alone (`SceneLights.casters`), after every
+# material group (the one past the end holds materials outside every group)
+SHADOW_ONLY = len(MATERIAL_GROUPS) + 1
 ALL_MATERIALS = ("HAS_ASPHALT", "HAS_MARKING", "HAS_PAVEMENT", "HAS_GRASS", "HAS_FOLIAGE",
                  "HAS_FACADE", "GLOSSY")  # fmt: skip
 # Cells of 24 m: a view's frustum leaves most of a 400 m scene's cells out, and a group's cells
@@ -104,6 +107,20 @@ class DrawBatches:
             else:
                 ranges.append((int(group), int(first), int(count)))
         return tuple(ranges)
+
+    def then(
+        self, group: int, first: int, count: int, vertices: NDArray[np.float32]
+    ) -> DrawBatches:
+        """These batches and one more after them: `count` vertices from `first` (rows of
+        `VERTEX_FORMAT`, `vertices`) in `group`."""
+        positions = vertices[:, :3].astype(np.float64)
+        return DrawBatches(
+            np.append(self.group, group),
+            np.append(self.first, first),
+            np.append(self.count, count),
+            np.vstack([self.low_m, positions.min(axis=0)]),
+            np.vstack([self.high_m, positions.max(axis=0)]),
+        )
 
     def visible(self, matrix: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(B,) whether each batch's box may show in the view of `matrix` (world to clip space,

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
 from drivee2e_data.sim.gl_batches import (
     NOT_CASTING,
+    SHADOW_ONLY,
     DrawBatches,
     group_defines,
     in_draw_order,
@@ -193,10 +194,16 @@ def shadow_matrix(light_direction: Sequence[float], centre_xy: Sequence[float]) 
 class SceneLights:
     """What the scene's light follows at one state besides the look: the focus the sun's shadow
     map centres on (the ego) and the vehicles' headlights, nearest first (position and unit
-    direction, world frame)."""
+    direction, world frame); `casters`, bodies with a model drawn into the shadow map alone,
+    at (position, orientation (x, y, z, w)) in their animation: the ego, hidden from the cameras it carries, still
+    casts its shadow into their view; `shadow_key`, what names the shadow map's content (two
+    states with the same key share one map: a frame's cameras, with the ego hidden but casting,
+    and its top view, with the ego shown); None: the state itself."""
 
     focus_xy_m: tuple[float, float] = (0.0, 0.0)
     headlights: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
+    casters: tuple[tuple[int, tuple[float, ...], tuple[float, ...], Animation], ...] = ()
+    shadow_key: object = None
 
 
 class GLRenderer:
@@ -379,6 +386,7 @@ class GLRenderer:
         self.bodies = {}
         self.placed = {}
         self.synced = None
+        self.shadowed = None
         self.lit = None
 
     def sync(
@@ -405,19 +413,22 @@ class GLRenderer:
                 if position[2] < HIDDEN_BELOW_M:
                     continue
                 animation = animations.get(body, Animation())
-                placed = self.placed.get(body)
-                if placed is not None and placed[0] == (position, orientation, animation):
-                    parts.append(placed[1])
-                    continue
-                posed = pose(self.models[body], animation)
-                vertices = model_vertices(self.models[body], posed, position, orientation, body)
-                self.placed[body] = ((position, orientation, animation), vertices)
-                parts.append(vertices)
+                parts.append(self._placed(body, position, orientation, animation))
             else:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
         vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
+        lights = lights or SceneLights()
+        casters = [self._placed(body, position, orientation, animation)
+                   for body, position, orientation, animation in lights.casters
+                   if body in self.models]  # fmt: skip
+        if casters:  # after the drawn vertices, in a batch only the shadow pass draws
+            shadow_only = np.concatenate(casters)
+            self.dynamic_batches = self.dynamic_batches.then(
+                SHADOW_ONLY, len(vertices), len(shadow_only), shadow_only
+            )
+            vertices = np.concatenate([vertices, shadow_only])
         with current(self.context):
             if vertices.nbytes > self.dynamic_buffer.size:
                 for key in [k for k in self.arrays if k[0] == "dynamic"]:
@@ -426,8 +437,19 @@ class GLRenderer:
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices.tobytes())
-        self.lights = lights or SceneLights()
+        self.lights = lights
         self.synced = state
+
+    def _placed(self, body: int, position, orientation, animation: Animation) -> NDArray:
+        """The model of `body` posed by `animation` at (position, orientation), in the world
+        (kept with its pose: a frame draws most models twice at the same pose)."""
+        placed = self.placed.get(body)
+        if placed is not None and placed[0] == (position, orientation, animation):
+            return placed[1]
+        posed = pose(self.models[body], animation)
+        vertices = model_vertices(self.models[body], posed, position, orientation, body)
+        self.placed[body] = ((position, orientation, animation), vertices)
+        return vertices
 
     def _framebuffer(self, width: int, height: int):
         framebuffer = self.framebuffers.get((width, height))
@@ -462,7 +484,8 @@ class GLRenderer:
             else:
                 self.context.enable(moderngl.CULL_FACE)
             labels = program_key == "labels"
-            for group, first, vertices in batches.runs(visible, by_group=not labels):
+            draws = batches.runs(visible, by_group=not labels, skip=frozenset({SHADOW_ONLY}))
+            for group, first, vertices in draws:
                 key = "labels" if labels else group_defines(group, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
                                                      first=first)  # fmt: skip
@@ -517,9 +540,10 @@ class GLRenderer:
         with current(self.context):
             shadows = look != "labels" and shader_look.shadows
             sun_matrix = shadow_matrix(shader_look.light_direction, self.lights.focus_xy_m)
-            if shadows and self.shadowed != self.synced:
+            key = self.synced if self.lights.shadow_key is None else self.lights.shadow_key
+            if shadows and self.shadowed != key:
                 self._shadow_pass(sun_matrix)
-                self.shadowed = self.synced
+                self.shadowed = key
             framebuffer = self._framebuffer(width, height)
             framebuffer.use()
             for attachment, value in enumerate(((*CLEAR_RGB, 1.0), (0.0,) * 4, (far_m,) * 4)):
@@ -537,6 +561,7 @@ class GLRenderer:
                 if shader_look.lamps_on:
                     self._light_texture(shader_look)
                 groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
+                groups.discard(SHADOW_ONLY)
                 programs = [self._scene_program(group_defines(g, variant)) for g in sorted(groups)]
                 self._apply_look(programs, shader_look, camera_position, far_m,
                                  {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip

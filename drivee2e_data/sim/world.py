@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from drivee2e_data.arrays import nearest_indices
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.scenario import AgentClass, Scenario, SignalState
+from drivee2e_data.scenario import AgentClass, Scenario, SignalState, Track
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
@@ -223,9 +223,16 @@ class World:
         """Each actor body's procedural model (what the GL renderer draws for it)."""
         return {self.bodies[track_id]: model for track_id, model in self.models.items()}
 
-    def _animate(self, frame: int, shown: Mapping[str, tuple[float, float, float]]) -> None:
-        """Each shown actor's animation at the log's `frame` (wheels, steps, brake lights) and
-        the headlights that light the scene; `shown` maps track ids to (x, y, yaw)."""
+    def _animate(
+        self,
+        frame: int,
+        shown: Mapping[str, tuple[float, float, float]],
+        shadow_key: object = None,
+    ) -> None:
+        """Each shown actor's animation at the log's `frame` (wheels, steps, brake lights), the
+        headlights that light the scene, and the ego's shadow where the ego is hidden (its
+        cameras' view) but placed (`place_ego` with a pose); `shown` maps track ids to (x, y,
+        yaw); `shadow_key` names the shadow map's content (`SceneLights`)."""
         headlights = self.look.headlights
         self.animations = {}
         spots = []
@@ -233,17 +240,18 @@ class World:
             pose = shown.get(track.track_id)
             if pose is None:
                 continue
-            model = self.models[track.track_id]
-            walks = track.agent_class == AgentClass.PEDESTRIAN
-            motor = (
-                track.agent_class.is_motor_vehicle or track.agent_class == AgentClass.MOTORCYCLIST
-            )
-            animation = animation_at(
-                self.motions[track.track_id], frame, model, headlights and motor, walks
-            )
+            animation, motor = self._animation(track, frame)
             self.animations[self.bodies[track.track_id]] = animation
             if headlights and motor:
                 spots.append(_headlight(pose, self.blueprints[track.track_id].size_m))
+        casters = []
+        ego = self.scenario.ego
+        if ego is not None and self.ego_pose is not None and ego.track_id not in shown:
+            at = min(max(frame, 0), self.scenario.num_frames - 1)
+            position, orientation = self._logged_placement(ego, at, self.ego_pose)
+            animation = self._animation(ego, at)[0]
+            casters.append((self.bodies[ego.track_id], tuple(position), tuple(orientation),
+                            animation))  # fmt: skip
         if headlights and self.ego_pose is not None:
             ego = self.scenario.ego
             size = self.blueprints[ego.track_id].size_m if ego is not None else (4.6, 1.85, 1.45)
@@ -255,8 +263,17 @@ class World:
             )
         )
         self.scene_lights = SceneLights(
-            (float(self.ego_xy[0]), float(self.ego_xy[1])), tuple(spots)
-        )
+            (float(self.ego_xy[0]), float(self.ego_xy[1])), tuple(spots), tuple(casters),
+            shadow_key,
+        )  # fmt: skip
+
+    def _animation(self, track: Track, frame: int) -> tuple[Animation, bool]:
+        """A track's animation at `frame` and whether it is a motor vehicle (lit at night)."""
+        walks = track.agent_class == AgentClass.PEDESTRIAN
+        motor = track.agent_class.is_motor_vehicle or track.agent_class == AgentClass.MOTORCYCLIST
+        model = self.models[track.track_id]
+        headlights = self.look.headlights and motor
+        return animation_at(self.motions[track.track_id], frame, model, headlights, walks), motor
 
     def close(self) -> None:
         """Disconnect and delete the twin's files; a second call does nothing."""
@@ -307,10 +324,7 @@ class World:
                 )
             )
             if visible:
-                ground = track.z_m[frame] - 0.5 * track.height_m[frame]
-                z = ground + 0.5 * self.blueprints[track.track_id].size_m[2]
-                orientation = self.p.getQuaternionFromEuler([0.0, 0.0, float(track.yaw_rad[frame])])
-                position = [float(track.x_m[frame]), float(track.y_m[frame]), float(z)]
+                position, orientation = self._logged_placement(track, frame)
                 shown[track.track_id] = (position[0], position[1], float(track.yaw_rad[frame]))
             else:
                 orientation, position = [0, 0, 0, 1], [0.0, 0.0, HIDDEN_Z_M]
@@ -319,9 +333,23 @@ class World:
             )
         states = {s.signal_id: SignalState(int(s.states[frame])) for s in self.scenario.signals}
         self.twin.show(states)
-        self._animate(frame, shown)
+        # the scene of a log frame casts the same shadows whether the ego is shown (the top
+        # view) or hidden and casting (its cameras): one shadow map for both
+        key = (self.scenario.scenario_id, frame, *self.ego_xy.tolist())
+        self._animate(frame, shown, shadow_key=key)
         self.frame = frame
         self.state += 1
+
+    def _logged_placement(
+        self, track: Track, frame: int, xy_yaw: tuple[float, float, float] | None = None
+    ) -> tuple[list[float], list[float]]:
+        """Where a track's body stands at `frame` (its blueprint's box on the logged box's
+        ground point), at its logged (x, y, yaw) or at `xy_yaw`: position and quaternion."""
+        x, y, yaw = xy_yaw or (track.x_m[frame], track.y_m[frame], track.yaw_rad[frame])
+        ground = track.z_m[frame] - 0.5 * track.height_m[frame]
+        z = ground + 0.5 * self.blueprints[track.track_id].size_m[2]
+        orientation = self.p.getQuaternionFromEuler([0.0, 0.0, float(yaw)])
+        return [float(x), float(y), float(z)], list(orientation)
 
     def show(
         self,
