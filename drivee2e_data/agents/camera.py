@@ -92,11 +92,53 @@ def vector_features(
     )
 
 
-def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
-    """The split's samples as the camera policy reads them (front cameras at input size)."""
+def dataset_for(
+    root: Path, split: str, split_name: str = "default", input_size: tuple[int, int] = INPUT_SIZE
+) -> DriveE2EDataset:
+    """The split's samples as a front-camera policy reads them (the three front cameras at
+    `input_size`, width and height)."""
     return DriveE2EDataset(
-        root, split, split_name, cameras=FRONT_CAMERAS, image_size=INPUT_SIZE, with_map=False
+        root, split, split_name, cameras=FRONT_CAMERAS, image_size=input_size, with_map=False
     )
+
+
+def batch_vector(batch: dict[str, Any]) -> torch.Tensor:
+    """A Dataset batch's measurement vector (`vector_features`)."""
+    return vector_features(
+        batch["gt_ego_fut_cmd"], batch["ego_status"][:, 6], batch["target_point"]
+    )
+
+
+def observation_inputs(
+    observation: Observation, image_size: tuple[int, int], input_size: tuple[int, int]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A closed-loop observation as a front-camera policy's batch of one: the front cameras'
+    JPEGs (collected at `image_size`) decoded as the Dataset decodes them to `input_size`
+    `(1, 3, 3, H, W)` uint8, and the measurement vector `(1, 6)`."""
+    images = np.stack(
+        [decode_cpu(observation.images[c], image_size, input_size) for c in FRONT_CAMERAS]
+    )
+    command = torch.zeros(1, 3)
+    command[0, int(observation.command) - 1] = 1.0
+    vector = vector_features(
+        command,
+        torch.tensor([observation.speed_mps]),
+        torch.as_tensor(np.asarray(observation.target_point_m), dtype=torch.float32),
+    )
+    return torch.from_numpy(images)[None], vector
+
+
+def trainable_size(dataset: DriveE2EDataset, input_size: tuple[int, int], name: str) -> list[int]:
+    """The full camera size of `dataset`'s logs, once it is checked to hold samples of the
+    front cameras at `input_size` (`dataset_for`), for policy `name`."""
+    if len(dataset) == 0:
+        raise DriveE2EError(
+            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
+        )
+    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != input_size:
+        raise DriveE2EError(f"the {name} policy trains on {name}.dataset_for(...) samples")
+    first = dataset.samples[0][0]
+    return list(dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"])
 
 
 def extract(
@@ -105,9 +147,7 @@ def extract(
     """Images, vector features, targets `y` and masks of every sample, in dataset order."""
 
     def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
-        speed = batch["ego_status"][:, 6]
-        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
-        return {"images": batch["img"], "vector": vector}
+        return {"images": batch["img"], "vector": batch_vector(batch)}
 
     return training.extract(dataset, inputs, 64, progress)
 
@@ -121,18 +161,11 @@ def train(
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (from `dataset_for`); returns the checkpoint."""
     options = options or TrainOptions(epochs=40, batch_size=32)
-    if len(dataset) == 0:
-        raise DriveE2EError(
-            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
-        )
-    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != INPUT_SIZE:
-        raise DriveE2EError("the camera policy trains on camera.dataset_for(...) samples")
-    first = dataset.samples[0][0]
-    full_size = dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"]
+    full_size = trainable_size(dataset, INPUT_SIZE, CameraPolicy.name)
     data = extract(dataset, on_sample)
     torch.manual_seed(options.seed)
     model = CameraPolicy(len(FRONT_CAMERAS), data["y"].shape[1])
-    header = {"kind": CameraPolicy.name, "steps": model.steps, "camera_size": list(full_size)}
+    header = {"kind": CameraPolicy.name, "steps": model.steps, "camera_size": full_size}
     return fit(
         model,
         data,
@@ -173,18 +206,8 @@ class CameraAgent:
 
     @torch.no_grad()
     def act(self, observation: Observation) -> Waypoints:
-        images = np.stack(
-            [decode_cpu(observation.images[c], self.image_size, INPUT_SIZE) for c in FRONT_CAMERAS]
-        )
-        command = torch.zeros(1, 3)
-        command[0, int(observation.command) - 1] = 1.0
-        vector = vector_features(
-            command,
-            torch.tensor([observation.speed_mps]),
-            torch.as_tensor(np.asarray(observation.target_point_m), dtype=torch.float32),
-        )
-        plan = self.model(torch.from_numpy(images)[None], vector)[0]
-        return Waypoints(plan.double().numpy())
+        images, vector = observation_inputs(observation, self.image_size, INPUT_SIZE)
+        return Waypoints(self.model(images, vector)[0].double().numpy())
 
 
 class CameraPlanner:
@@ -197,6 +220,4 @@ class CameraPlanner:
 
     @torch.no_grad()
     def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        speed = batch["ego_status"][:, 6]
-        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
-        return self.model(batch["img"], vector).double()
+        return self.model(batch["img"], batch_vector(batch)).double()

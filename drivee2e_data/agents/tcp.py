@@ -16,19 +16,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
+from drivee2e_data.agents import camera, training
 from drivee2e_data.agents import checkpoint as checkpoints
-from drivee2e_data.agents import training
-from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD, vector_features
+from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD
 from drivee2e_data.agents.resnet import RESNET18_BLOCKS, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
 from drivee2e_data.loaders.dataset import DriveE2EDataset
-from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.sensors.rig import Rig
 
 # 256 x 144 per camera: TCP's front view is 900 x 256 over a wider field; three of ours side by
@@ -95,9 +93,7 @@ class TCPPolicy(nn.Module):
 
 def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
     """The split's samples as the policy reads them (front cameras at `INPUT_SIZE`)."""
-    return DriveE2EDataset(
-        root, split, split_name, cameras=FRONT_CAMERAS, image_size=INPUT_SIZE, with_map=False
-    )
+    return camera.dataset_for(root, split, split_name, INPUT_SIZE)
 
 
 def extract(
@@ -106,9 +102,8 @@ def extract(
     """Images, measurement vectors, speeds, targets `y` and masks of every sample, in order."""
 
     def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
-        speed = batch["ego_status"][:, 6]
-        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
-        return {"images": batch["img"], "vector": vector, "speed": speed.float()}
+        speed = batch["ego_status"][:, 6].float()
+        return {"images": batch["img"], "vector": camera.batch_vector(batch), "speed": speed}
 
     return training.extract(dataset, inputs, 32, progress)
 
@@ -131,19 +126,12 @@ def train(
     """Train on every sample of `dataset` (from `dataset_for`) on `device`; returns the
     checkpoint. `width`: the trunk's first stage's channels (64: ResNet-18)."""
     options = options or TrainOptions(epochs=30, batch_size=32, learning_rate=3e-4)
-    if len(dataset) == 0:
-        raise DriveE2EError(
-            f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
-        )
-    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != INPUT_SIZE:
-        raise DriveE2EError("the TCP policy trains on tcp.dataset_for(...) samples")
-    first = dataset.samples[0][0]
-    full_size = dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"]
+    full_size = camera.trainable_size(dataset, INPUT_SIZE, TCPPolicy.name)
     data = extract(dataset, on_sample)
     torch.manual_seed(options.seed)
     model = TCPPolicy(len(FRONT_CAMERAS), data["y"].shape[1], width)
     header = {"kind": TCPPolicy.name, "steps": model.steps, "width": width,
-              "blocks": list(model.blocks), "camera_size": list(full_size)}  # fmt: skip
+              "blocks": list(model.blocks), "camera_size": full_size}  # fmt: skip
     return fit(model, data, _predict, checkpoint, options, header, on_epoch, device)
 
 
@@ -174,17 +162,8 @@ class TCPAgent:
 
     @torch.no_grad()
     def act(self, observation: Observation) -> Waypoints:
-        images = np.stack(
-            [decode_cpu(observation.images[c], self.image_size, INPUT_SIZE) for c in FRONT_CAMERAS]
-        )
-        command = torch.zeros(1, 3)
-        command[0, int(observation.command) - 1] = 1.0
-        vector = vector_features(
-            command,
-            torch.tensor([observation.speed_mps]),
-            torch.as_tensor(np.asarray(observation.target_point_m), dtype=torch.float32),
-        )
-        plan, _ = self.model(torch.from_numpy(images)[None], vector)
+        images, vector = camera.observation_inputs(observation, self.image_size, INPUT_SIZE)
+        plan, _ = self.model(images, vector)
         return Waypoints(plan[0].double().numpy())
 
 
@@ -198,7 +177,5 @@ class TCPPlanner:
 
     @torch.no_grad()
     def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        speed = batch["ego_status"][:, 6]
-        vector = vector_features(batch["gt_ego_fut_cmd"], speed, batch["target_point"])
-        plan, _ = self.model(batch["img"], vector)
+        plan, _ = self.model(batch["img"], camera.batch_vector(batch))
         return plan.double()
