@@ -195,10 +195,11 @@ class SceneLights:
     """What the scene's light follows at one state besides the look: the focus the sun's shadow
     map centres on (the ego) and the vehicles' headlights, nearest first (position and unit
     direction, world frame); `casters`, bodies with a model drawn into the shadow map alone,
-    at (position, orientation (x, y, z, w)) in their animation: the ego, hidden from the cameras it carries, still
-    casts its shadow into their view; `shadow_key`, what names the shadow map's content (two
-    states with the same key share one map: a frame's cameras, with the ego hidden but casting,
-    and its top view, with the ego shown); None: the state itself."""
+    at (position, orientation (x, y, z, w)) in their animation: the ego, hidden from the
+    cameras it carries, still casts its shadow into their view; `shadow_key`, what names the
+    shadow map's content (two states with the same key share one map: a frame's cameras, with
+    the ego hidden but casting, and its top view, with the ego shown); None: the state
+    itself."""
 
     focus_xy_m: tuple[float, float] = (0.0, 0.0)
     headlights: tuple[tuple[tuple[float, float, float], tuple[float, float, float]], ...] = ()
@@ -212,7 +213,9 @@ class GLRenderer:
     model where it has one (`set_models`: the actors, posed by their `Animation`), else from
     its pybullet visual shapes. `lamps` (signal lamps) have their colours read again too, and
     shine them whatever the light. The shaders (`sim/shaders`) draw materials, the sky, the
-    sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`."""
+    sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`. With
+    `cull` (None: where GL draws on the CPU, `rasterises_on_cpu`) each view draws only the
+    cells of the scene its frustum meets (`gl_batches`)."""
 
     def __init__(
         self,
