@@ -100,6 +100,14 @@ def _close_world() -> None:
         _world.close()
 
 
+def remove_world_files() -> None:
+    """Delete this process's world's temporary files (its twin's meshes) and nothing else:
+    safe at any point, for a worker told to stop (`runner`'s SIGTERM handler), where `atexit`
+    would not run."""
+    if _world is not None:
+        _world.twin.remove_files()
+
+
 def _world_for(root: Path, scenario_id: str, renderer: str, post_process: str = "cpu") -> World:
     global _world
     if post_process == "cuda" and not camera_gpu.cuda_started():

@@ -35,6 +35,7 @@ from drivee2e_data.collect.job import (
     collect_clip,
     log_path,
     planned_frames,
+    remove_world_files,
 )
 from drivee2e_data.collect.segments import WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
@@ -331,6 +332,14 @@ def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[i
 
     cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    signal.signal(signal.SIGTERM, _stop_worker)
+
+
+def _stop_worker(signum: int, _frame: object) -> None:
+    """SIGTERM (the parent stopping the pool, `stop_pool`): delete the world's temporary files
+    and exit at once; exiting by the signal's default action left them in the temp folder."""
+    remove_world_files()
+    os._exit(128 + signum)
 
 
 def _pooled_unit(root: Path, unit: WorkUnit, options: CollectOptions) -> JobResult:

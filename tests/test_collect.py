@@ -34,17 +34,22 @@ def _payloads(path: Path) -> dict[tuple[str, int], bytes]:
         }
 
 
-def _start_collector(root: Path, arguments: list[str]) -> subprocess.Popen:
+def _start_collector(
+    root: Path, arguments: list[str], temporary: Path | None = None
+) -> subprocess.Popen:
     """`drivee2e collect` in a process group of its own, as a terminal would start it: with
     Ctrl-C's default action even where the tests run in the background (a shell without job
-    control starts background commands with SIGINT ignored, and Python keeps it ignored)."""
+    control starts background commands with SIGINT ignored, and Python keeps it ignored);
+    `temporary`: its temp folder (TMPDIR)."""
     command = [sys.executable, "-m", "drivee2e_data.cli", "collect", str(root), *arguments]
+    environment = None if temporary is None else {**os.environ, "TMPDIR": str(temporary)}
     return subprocess.Popen(
         [*command, *SMALL_COLLECT],
         start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
+        env=environment,
     )
 
 
@@ -228,10 +233,13 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     synthetic_root: Path, tmp_path: Path
 ):
     """Four 60-frame clips on two workers are cut into 30-frame segments; Ctrl-C while both
-    workers write one leaves neither unfinished segment file nor any partial log."""
+    workers write one leaves neither unfinished segment file nor any partial log, nor the
+    workers' twin meshes in the temp folder."""
     ids = store.scenario_ids(synthetic_root)[6:10]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
-    process = _start_collector(root, ["--workers", "2", "--max-frames", "60"])
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    process = _start_collector(root, ["--workers", "2", "--max-frames", "60"], temporary)
     logs = root / "logs"
     unfinished = ".segments/*/*.segment-tmp"
     _wait_until(lambda: len(list(logs.glob(unfinished))) == 2, process)
@@ -245,6 +253,7 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     assert "interrupted" in err.decode() and "rerun to resume" in err.decode()
     assert not list(logs.glob(".*.partial")) and not list(logs.glob(unfinished))
     assert len(list(logs.glob("*.mcap"))) < len(ids)
+    assert not list(temporary.glob("drivee2e_twin_*"))
 
 
 def test_a_damaged_log_is_reported_not_skipped_nor_overwritten(

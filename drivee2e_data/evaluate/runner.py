@@ -290,7 +290,17 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _stop_worker)
     atexit.register(close_process_state)  # the world's EGL context closes quietly
+
+
+def _stop_worker(signum: int, _frame: object) -> None:
+    """SIGTERM (the parent stopping the pool, `stop_pool`): delete the world's temporary files
+    (its twin's meshes) and exit at once; the default action left them in the temp folder. A
+    child agent process (`--agent-cmd`) ends with its pipe."""
+    if _world is not None:
+        _world.twin.remove_files()
+    os._exit(128 + signum)
 
 
 def _run_pool(
