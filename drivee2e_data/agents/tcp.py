@@ -12,6 +12,7 @@ camera policy (`agents/camera.py`), at `INPUT_SIZE`.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -145,9 +146,26 @@ def load(path: Path) -> tuple[TCPPolicy, tuple[int, int]]:
     return model, (int(width), int(height))
 
 
+# where the closed-loop agent runs its network: DRIVEE2E_AGENT_DEVICE=cpu, cuda or auto (the
+# default: cuda where torch sees a GPU). The agent is made before the episode's world, so CUDA
+# starts before the renderer's EGL context in each evaluation process.
+AGENT_DEVICE_VARIABLE = "DRIVEE2E_AGENT_DEVICE"
+
+
+def agent_device() -> str:
+    """The device the closed-loop agent runs on (`AGENT_DEVICE_VARIABLE`)."""
+    chosen = os.environ.get(AGENT_DEVICE_VARIABLE, "auto")
+    if chosen == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if chosen != "cpu" and not chosen.startswith("cuda"):
+        raise DriveE2EError(f"{AGENT_DEVICE_VARIABLE}={chosen!r}: expected auto, cpu or cuda")
+    return chosen
+
+
 class TCPAgent:
     """The policy in closed loop: the front cameras rendered at the size its training data was
-    collected at, decoded as the Dataset decodes them; waypoints to the PID controller."""
+    collected at, decoded as the Dataset decodes them; waypoints to the PID controller. The
+    network runs on `agent_device()`."""
 
     name = "tcp"
     sensors = FRONT_CAMERAS
@@ -156,6 +174,8 @@ class TCPAgent:
         if checkpoint is None:
             raise DriveE2EError("agent tcp needs --checkpoint (drivee2e train tcp writes one)")
         self.model, self.image_size = load(Path(checkpoint))
+        self.device = agent_device()
+        self.model.to(self.device)
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
@@ -163,8 +183,8 @@ class TCPAgent:
     @torch.no_grad()
     def act(self, observation: Observation) -> Waypoints:
         images, vector = camera.observation_inputs(observation, self.image_size, INPUT_SIZE)
-        plan, _ = self.model(images, vector)
-        return Waypoints(plan[0].double().numpy())
+        plan, _ = self.model(images.to(self.device), vector.to(self.device))
+        return Waypoints(plan[0].double().cpu().numpy())
 
 
 class TCPPlanner:
