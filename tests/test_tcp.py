@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 from drivee2e_data.agents import tcp
@@ -89,3 +90,15 @@ def test_a_device_that_is_not_there_is_one_clear_error(loader_root: Path, tmp_pa
         code = main(["train", "tcp", str(loader_root), "--out", str(out), "--device", device])
         assert code != 0 and message in capsys.readouterr().err
         assert not out.exists()
+
+
+def test_the_closed_loop_device_comes_from_the_environment(monkeypatch):
+    from drivee2e_data.errors import DriveE2EError
+
+    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "cpu")
+    assert tcp.agent_device() == "cpu"
+    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "auto")
+    assert tcp.agent_device() == ("cuda" if torch.cuda.is_available() else "cpu")
+    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "tpu")
+    with pytest.raises(DriveE2EError, match="expected auto, cpu or cuda"):
+        tcp.agent_device()
