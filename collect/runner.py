@@ -168,6 +168,11 @@ class _ClipTracker:
         for unit in units:
             self.waiting[unit.scenario_id] = self.waiting.get(unit.scenario_id, 0) + 1
         self.clips: dict[str, JobResult] = {}
+        # clips whose segments an earlier run finished, all of them, but whose log it did not
+        # write (it stopped in between): their logs are written first
+        self.ready = [s for s, frames in clip_frames.items() if frames and s not in self.waiting]
+        for scenario_id in self.ready:
+            self.clips[scenario_id] = JobResult(scenario_id, "collected")
 
     def finished(self, unit: WorkUnit, result: JobResult) -> str | None:
         """Count in a unit's result; returns the clip's id when its segments are all done and
@@ -271,7 +276,9 @@ def collect(
         try:
             if backend == "ray":
                 _run_ray(root, units, options, tracker, tick, gpus)
-            elif workers <= 1:
+            elif workers <= 1 or not units:
+                for scenario_id in tracker.ready:
+                    tracker.merge(scenario_id)
                 for unit in units:
                     merge = tracker.finished(unit, run_unit(root, unit, options, tick))
                     if merge is not None:
@@ -371,7 +378,7 @@ def _run_pool(
         initargs=(frames_done, started, gpus),
     )
     waiting = collections.deque(units)
-    merges: collections.deque[str] = collections.deque()
+    merges: collections.deque[str] = collections.deque(tracker.ready)
     running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
 
     def hand_out() -> None:
@@ -428,6 +435,8 @@ def _run_ray(
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
 ) -> None:
+    for scenario_id in tracker.ready:  # logs a stopped run left unwritten: written here
+        tracker.merge(scenario_id)
     if not units:
         return
     import ray

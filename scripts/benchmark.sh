@@ -11,7 +11,8 @@
 #   WORKERS=auto (collection)  EVAL_WORKERS=<cores>  SYNTH_WORKERS=<cores>  SENSOR_HZ=2
 #   MANIFEST=splits/synthetic-800.csv  DRIVEE2E=drivee2e (the command)  PYTHON=python3
 # Every stage resumes: synthesis and collection skip finished clips, training resumes from its
-# checkpoint, evaluation from its finished episodes; OUT/times.tsv records each stage's seconds.
+# checkpoint, evaluation from its finished episodes; OUT/times.tsv gets each stage's seconds
+# (a resumed run appends its own, after a line naming when it started).
 set -euo pipefail
 OUT="${1:?usage: bash scripts/benchmark.sh OUT}"
 HERE="$(cd "$(dirname "$0")" && pwd)"
@@ -28,7 +29,7 @@ DRIVEE2E="${DRIVEE2E:-drivee2e}"
 PYTHON="${PYTHON:-python3}"
 DATA="$OUT/data"
 mkdir -p "$OUT/runs" "$OUT/openloop" "$OUT/checkpoints"
-: > "$OUT/times.tsv.partial"
+echo "# run started $(date -u +%Y-%m-%dT%H:%M:%SZ) on $(hostname), $CORES cores" >> "$OUT/times.tsv"
 
 stage() {  # stage NAME COMMAND...: run it, record its seconds
     local name="$1" start
@@ -36,7 +37,7 @@ stage() {  # stage NAME COMMAND...: run it, record its seconds
     start="$(date +%s%N)"
     echo "== $name" >&2
     "$@"
-    printf '%s\t%d\n' "$name" "$(( ($(date +%s%N) - start) / 1000000000 ))" >> "$OUT/times.tsv.partial"
+    printf '%s\t%d\n' "$name" "$(( ($(date +%s%N) - start) / 1000000000 ))" >> "$OUT/times.tsv"
 }
 
 # shellcheck disable=SC2086
@@ -102,5 +103,4 @@ if [ "$SPREAD_SIZE" != none ]; then
         train "$model" "$SPREAD_SIZE" 1
     done
 fi
-mv "$OUT/times.tsv.partial" "$OUT/times.tsv"
 "$PYTHON" "$HERE/benchmark_report.py" "$OUT"

@@ -128,6 +128,9 @@ def report(out: Path) -> tuple[str, dict]:
     if times_path.is_file():
         lines += ["", "### Time per stage", "", "| stage | s |", "|---|---|"]
         for line in times_path.read_text().splitlines():
+            if line.startswith("#"):  # a run's start (a resumed run appends its own)
+                lines.append(f"| *{line.lstrip('# ')}* | |")
+                continue
             stage, seconds = line.split("\t")
             lines.append(f"| {stage} | {seconds} |")
     return "\n".join(lines) + "\n", {"runs": runs, "sizes": sizes, "tau": tau}

@@ -128,6 +128,34 @@ def test_a_crashed_run_resumes_from_its_finished_segments(
     assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_run_stopped_between_its_last_segment_and_the_log_writes_the_log_on_rerun(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path, workers: int
+):
+    """Every segment of a clip was finished but the log not written (the run stopped in
+    between): the rerun collects nothing and writes the log, the same as one worker's; a second
+    rerun finds it done (and with two workers starts no pool for nothing)."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    for start, stop in ((0, 18), (18, 36)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+    seen: list[int] = []
+
+    def progress(total: int, clips: int):  # type: ignore[no-untyped-def]
+        seen.append(total)
+        return None
+
+    summary = collect(root, options, workers=workers, progress=progress)
+    assert seen == [0]  # no frame left to collect
+    assert [(r.scenario_id, r.status) for r in summary.results] == [(scenario_id, "collected")]
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+    assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
+    again = collect(root, options, workers=workers)
+    assert [r.status for r in again.results] == ["skipped"]
+
+
 def test_segments_that_do_not_make_the_clip_are_a_clear_error(synthetic_root: Path, tmp_path: Path):
     scenario_id = store.scenario_ids(synthetic_root)[1]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
