@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.evaluate.episode import STEP_S, EpisodeResult
+from drivee2e_data.geometry import box_corners_2d, to_world_frame
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors import bev
 from drivee2e_data.sensors.camera import render, with_conditions
@@ -100,13 +101,10 @@ def _draw_top(
         if len(points) >= 2:
             cv2.polylines(top, [top_view_pixels(points, *pose)], False, colour, 2, cv2.LINE_AA)
     if planned_ego_m is not None and len(planned_ego_m):
-        c, s = np.cos(state.yaw_rad), np.sin(state.yaw_rad)
-        world = planned_ego_m @ np.array([[c, s], [-s, c]]) + state.xy_m
+        world = to_world_frame(planned_ego_m, state.xy_m, state.yaw_rad)
         for column, row in top_view_pixels(world, *pose):
             cv2.circle(top, (int(column), int(row)), 3, PLANNED_BGR, -1, cv2.LINE_AA)
-    centre = bicycle.centre_xy_m(state)
-    half = np.array([bicycle.length_m, bicycle.width_m]) / 2
-    corners = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * half
-    c, s = np.cos(state.yaw_rad), np.sin(state.yaw_rad)
-    box = corners @ np.array([[c, s], [-s, c]]) + centre
+    box = box_corners_2d(
+        bicycle.centre_xy_m(state), state.yaw_rad, bicycle.length_m, bicycle.width_m
+    )
     cv2.polylines(top, [top_view_pixels(box, *pose)], True, DRIVEN_BGR, 2, cv2.LINE_AA)
