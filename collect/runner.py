@@ -41,7 +41,7 @@ from drivee2e_data.collect.segments import WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
-from drivee2e_data.processes import stop_pool
+from drivee2e_data.processes import clean_up_when_stopped, stop_pool
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sim import egl_devices
 
@@ -339,14 +339,7 @@ def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[i
 
     cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    signal.signal(signal.SIGTERM, _stop_worker)
-
-
-def _stop_worker(signum: int, _frame: object) -> None:
-    """SIGTERM (the parent stopping the pool, `stop_pool`): delete the world's temporary files
-    and exit at once; exiting by the signal's default action left them in the temp folder."""
-    remove_world_files()
-    os._exit(128 + signum)
+    clean_up_when_stopped(remove_world_files)
 
 
 def _pooled_unit(root: Path, unit: WorkUnit, options: CollectOptions) -> JobResult:

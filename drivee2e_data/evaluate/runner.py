@@ -37,7 +37,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import stop_pool
+from drivee2e_data.processes import clean_up_when_stopped, stop_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -290,17 +290,14 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _stop_worker)
+    # stopped: the twin's meshes go (a child agent process, `--agent-cmd`, ends with its pipe)
+    clean_up_when_stopped(_remove_world_files)
     atexit.register(close_process_state)  # the world's EGL context closes quietly
 
 
-def _stop_worker(signum: int, _frame: object) -> None:
-    """SIGTERM (the parent stopping the pool, `stop_pool`): delete the world's temporary files
-    (its twin's meshes) and exit at once; the default action left them in the temp folder. A
-    child agent process (`--agent-cmd`) ends with its pipe."""
+def _remove_world_files() -> None:
     if _world is not None:
         _world.twin.remove_files()
-    os._exit(128 + signum)
 
 
 def _run_pool(
