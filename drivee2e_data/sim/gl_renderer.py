@@ -469,6 +469,14 @@ class GLRenderer:
             self.framebuffers[(width, height)] = framebuffer
         return framebuffer
 
+    def _in_view(self, matrix: NDArray[np.float64]) -> Iterator[tuple[str, DrawBatches, NDArray]]:
+        """Each buffer ("dynamic", then "static") with its batches and which of them the view
+        of `matrix` (world to clip space) may see: tested where culling, else all."""
+        for buffer_name, batches in (("dynamic", self.dynamic_batches),
+                                     ("static", self.static_batches)):  # fmt: skip
+            visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
+            yield buffer_name, batches, visible
+
     def _draw_geometry(self, program_key: object, matrix: NDArray[np.float64]) -> None:
         """Both buffers' batches that the view of `matrix` (world to clip space) may see: with
         the labels program (`program_key` "labels") in as few draws as they allow, or with the
@@ -477,9 +485,7 @@ class GLRenderer:
 
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
-        for buffer_name, batches in (("dynamic", self.dynamic_batches),
-                                     ("static", self.static_batches)):  # fmt: skip
-            visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
+        for buffer_name, batches, visible in self._in_view(matrix):
             if not visible.any():
                 continue
             if buffer_name == "dynamic":
@@ -503,9 +509,7 @@ class GLRenderer:
         self.context.enable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
         self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
-        for buffer_name, batches in (("dynamic", self.dynamic_batches),
-                                     ("static", self.static_batches)):  # fmt: skip
-            visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
+        for buffer_name, batches, visible in self._in_view(matrix):
             draws = batches.runs(visible, by_group=False, skip=NOT_CASTING)
             for _, first, vertices in draws:
                 self._array(buffer_name, "shadow").render(moderngl.TRIANGLES, vertices=vertices,
