@@ -1,6 +1,7 @@
 """The pybullet twin and replay: known answers on a small synthetic scene."""
 
 from collections import Counter
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -326,16 +327,33 @@ def test_large_egl_images_are_drawn_at_the_window_size_and_resized(clip):
     assert np.abs(full.rgb.astype(int).mean((0, 1)) - native.rgb.mean((0, 1))).max() < 2.0
 
 
-def test_sensor_noise_is_seeded_standard_normal_and_differs_between_seeds():
-    from drivee2e_data.sim.conditions import noise_pool, sensor_noise
+def test_sensor_noise_is_seeded_whole_levels_of_sigma_six_and_differs_between_seeds():
+    from drivee2e_data.sim.conditions import NIGHT_NOISE_SIGMA, noise_pool, sensor_noise
 
     first = sensor_noise((768, 1024, 3), np.random.default_rng(7))
     again = sensor_noise((768, 1024, 3), np.random.default_rng(7))
     other = sensor_noise((768, 1024, 3), np.random.default_rng(8))
     assert np.array_equal(first, again) and not np.array_equal(first, other)
-    assert abs(first.mean()) < 0.01 and abs(first.std() - 1.0) < 0.01
+    assert first.dtype == np.int8
+    assert abs(first.mean()) < 0.05 and abs(first.std() - NIGHT_NOISE_SIGMA) < 0.05
     full = sensor_noise((900, 1600, 3), np.random.default_rng(7))  # a camera: from the pool
     assert np.shares_memory(full, noise_pool())
     big = sensor_noise((2000, 2000, 3), np.random.default_rng(7))  # beyond half the pool
-    assert big.shape == (2000, 2000, 3) and abs(big.std() - 1.0) < 0.01
+    assert big.shape == (2000, 2000, 3) and abs(big.std() - NIGHT_NOISE_SIGMA) < 0.05
     assert not np.shares_memory(big, noise_pool())
+
+
+def test_night_noise_on_a_shaded_image_is_a_saturating_add_of_the_levels():
+    from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
+    from drivee2e_data.sim.conditions import Lighting, post_process, sensor_noise
+
+    rgb = np.random.default_rng(1).integers(0, 256, (90, 160, 3), dtype=np.uint8)
+    rgb[0, :10] = 0  # dark and bright pixels: the noise saturates instead of wrapping
+    rgb[1, :10] = 255
+    night = Lighting((0.0, 0.0, 1.0), (1.0, 0.85, 0.6), 0.5, 0.4, True)
+    conditions = Conditions(
+        Weather.CLEAR, TimeOfDay.NIGHT, datetime(2026, 5, 1, tzinfo=timezone.utc)
+    )
+    image = post_process(rgb, np.ones((90, 160), np.float32), conditions, night, 11, shaded=True)
+    noise = sensor_noise(rgb.shape, np.random.default_rng(11))
+    assert np.array_equal(image, np.clip(rgb.astype(int) + noise, 0, 255))

@@ -5,6 +5,8 @@ inside a box.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 import shapely
@@ -76,17 +78,44 @@ def visible_share(
     walker's legs, over a car's bonnet) is not hidden: the models fill their boxes only
     partly, and visibility is about occlusion, as nuScenes' annotators judge it. An agent none
     of whose own pixels shows is not visible (0)."""
-    covered = _covered_pixels(frame, corners_world, ego_to_world)
-    if covered is None:
-        return 0.0
-    rows, columns = covered
+    return float(visible_shares(frame, [body], corners_world[None], ego_to_world)[0])
+
+
+def visible_shares(
+    frame: CameraFrame,
+    bodies: Sequence[int],
+    corners_world: NDArray[np.float64],
+    ego_to_world: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """`visible_share` of each of B boxes (`bodies` (B,), `corners_world` (B, 8, 3)) in one
+    view: the boxes' pixels gathered and tested together (a frame asks this of six views and
+    up to a hundred boxes, and one box at a time the work was numpy's per-call overhead)."""
+    shares = np.zeros(len(bodies))
+    may_show = _may_show(frame, corners_world, ego_to_world)
+    covered = [
+        _covered_pixels(frame, corners, ego_to_world) if shows else None
+        for corners, shows in zip(corners_world, may_show, strict=True)
+    ]
+    boxes = [k for k, pixels in enumerate(covered) if pixels is not None]
+    if not boxes:
+        return shares
     # a share needs no more than a few thousand of a near box's pixels: an even subsample
-    step = max(1, len(rows) // DEPTH_SAMPLES)
-    rows, columns = rows[::step], columns[::step]
+    picked = []
+    for k in boxes:
+        rows, columns = covered[k]
+        step = max(1, len(rows) // DEPTH_SAMPLES)
+        picked.append((rows[::step], columns[::step]))
+    counts = np.array([len(rows) for rows, _ in picked])
+    ends = np.cumsum(counts)
+    box = np.repeat(np.arange(len(boxes)), counts)  # each pixel's box, among `boxes`
+    rows = np.concatenate([rows for rows, _ in picked])
+    columns = np.concatenate([columns for _, columns in picked])
     scale_x, scale_y = frame.drawn_per_camera_px
     intrinsic = frame.camera.intrinsic
     depth = frame.depth_m[rows, columns].astype(np.float64)
-    rays = np.column_stack(
+    # rays as (3, N) rows of x, y, z (camera z = 1), so that every step below runs over
+    # contiguous rows rather than across the short axis of (N, 3)
+    rays = np.stack(
         [
             ((columns + 0.5) / scale_x - intrinsic[0, 2]) / intrinsic[0, 0],
             ((rows + 0.5) / scale_y - intrinsic[1, 2]) / intrinsic[1, 1],
@@ -94,19 +123,60 @@ def visible_share(
         ]
     )
     to_world = camera_to_world(frame.camera, ego_to_world)
-    rays_world = rays @ to_world[:3, :3].T
+    rays_world = to_world[:3, :3] @ rays
     margin = DEPTH_MARGIN_M + depth_resolution_m(frame, depth)
+    origins, units, lengths = _box_frames(corners_world[boxes])
+    # per pixel, in its box's frame: the camera (start), the ray's direction (along), the size
+    start, along, size = (np.empty((3, len(rows))) for _ in range(3))
+    camera_in_boxes = np.einsum("bij,bj->bi", units, to_world[:3, 3] - origins)
+    for k, (first, end) in enumerate(zip(ends - counts, ends, strict=True)):
+        along[:, first:end] = units[k] @ rays_world[:, first:end]
+        start[:, first:end] = camera_in_boxes[k][:, None]
+        size[:, first:end] = lengths[k][:, None]
     if frame.mask is not None:
-        on_body = frame.mask[rows, columns] == body
+        on_body = frame.mask[rows, columns] == np.asarray(bodies)[boxes][box]
     else:
-        points_world = rays_world * depth[:, None] + to_world[:3, 3]
-        on_body = _inside_box(points_world, corners_world, margin)
-    entry = _entry_depth(to_world[:3, 3], rays_world, corners_world)
+        # where the pixel's depth puts its surface, in the box's frame
+        metres = start + depth * along
+        on_body = (
+            (metres[0] >= -margin) & (metres[1] >= -margin) & (metres[2] >= ABOVE_BOTTOM_M)
+            & (metres[0] <= size[0] + margin) & (metres[1] <= size[1] + margin)
+            & (metres[2] <= size[2] + margin)
+        )  # fmt: skip
+    entry = _entry_depths(start, along, size)
     through = np.isfinite(entry)  # a pixel on the outline's edge may pass beside the box
-    if not (through & on_body).any():
-        return 0.0  # nothing of the agent is drawn: not seen, whatever shows through its box
-    hidden = ~on_body[through] & (depth[through] < entry[through] - margin[through])
-    return float(1.0 - hidden.sum() / through.sum())
+    hidden = through & ~on_body & (depth < entry - margin)
+    seen = np.bincount(box, weights=through & on_body, minlength=len(boxes))
+    passing = np.bincount(box, weights=through, minlength=len(boxes))
+    hidden_count = np.bincount(box, weights=hidden, minlength=len(boxes))
+    # nothing of the agent drawn: not seen, whatever shows through its box
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(seen > 0, 1.0 - hidden_count / passing, 0.0)
+    shares[boxes] = share
+    return shares
+
+
+def _may_show(
+    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(B,) whether each box (B, 8, 3) may show in the camera's image at all: a corner in front
+    of it and the corners' bounding rectangle over the image (`projected_area`'s first tests,
+    for all boxes at once)."""
+    camera = frame.camera
+    to_world = camera_to_world(camera, ego_to_world)
+    points = (corners_world - to_world[:3, 3]) @ to_world[:3, :3]  # (B, 8, 3) camera frame
+    in_front = points[..., 2] > 0.1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = points @ camera.intrinsic.T
+        x = pixels[..., 0] / pixels[..., 2]
+        y = pixels[..., 1] / pixels[..., 2]
+    inf = np.inf
+    low_x = np.where(in_front, x, inf).min(axis=1)
+    low_y = np.where(in_front, y, inf).min(axis=1)
+    high_x = np.where(in_front, x, -inf).max(axis=1)
+    high_y = np.where(in_front, y, -inf).max(axis=1)
+    beside = (high_x <= 0) | (high_y <= 0) | (low_x >= camera.width) | (low_y >= camera.height)
+    return in_front.any(axis=1) & ~beside
 
 
 FLOAT_DEPTH_STEP = 2.0**-22  # float32's relative step (two units in the last place), with margin
@@ -122,22 +192,25 @@ def depth_resolution_m(frame: CameraFrame, depth_m: NDArray[np.float64]) -> NDAr
     return depth_step_m(depth_m, NEAR_M, FAR_M)
 
 
-def _entry_depth(
-    origin: NDArray[np.float64], rays: NDArray[np.float64], corners_world: NDArray[np.float64]
+def _entry_depths(
+    start: NDArray[np.float64], along: NDArray[np.float64], size: NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """(N,) the depth (camera z, as `rays` (N, 3) are scaled: z = 1) at which each ray from
-    `origin` enters the box (slab test); inf for rays that miss it."""
-    box_origin, units, lengths = _box_frame(corners_world)
-    start = units @ (origin - box_origin)  # (3,) the camera in the box's frame
-    along = rays @ units.T  # (N, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        low = (0.0 - start) / along
-        high = (lengths - start) / along
-    near = np.nanmax(np.where(along != 0, np.minimum(low, high), -np.inf), axis=1)
-    far = np.nanmin(np.where(along != 0, np.maximum(low, high), np.inf), axis=1)
-    # a ray parallel to a slab misses the box unless it runs inside that slab
-    outside = (along == 0) & ((start < 0) | (start > lengths))
-    return np.where((near <= far) & ~outside.any(axis=1), np.maximum(near, 0.0), np.inf)
+    """(N,) the depth (camera z, as the rays are scaled: z = 1) at which each ray enters its
+    box (slab test), given (3, N) in the box's frame: the camera (`start`), the ray's direction
+    (`along`) and the box's size; inf for rays that miss it."""
+    near = np.full(start.shape[1], -np.inf)
+    far = np.full(start.shape[1], np.inf)
+    misses = np.zeros(start.shape[1], bool)
+    for axis in range(3):
+        moving = along[axis] != 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            low = (0.0 - start[axis]) / along[axis]
+            high = (size[axis] - start[axis]) / along[axis]
+        np.maximum(near, np.where(moving, np.minimum(low, high), -np.inf), out=near)
+        np.minimum(far, np.where(moving, np.maximum(low, high), np.inf), out=far)
+        # a ray parallel to a slab misses the box unless it runs inside that slab
+        misses |= ~moving & ((start[axis] < 0) | (start[axis] > size[axis]))
+    return np.where((near <= far) & ~misses, np.maximum(near, 0.0), np.inf)
 
 
 # a surface point belongs to a box within this much (plus the depth's resolution there,
@@ -184,25 +257,26 @@ def _box_frame(
     return origin, axes / lengths[:, None], lengths
 
 
+def _box_frames(
+    corners_world: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """`_box_frame` of B boxes `(B, 8, 3)` at once: corners `(B, 3)`, axes `(B, 3, 3)`,
+    sizes `(B, 3)`."""
+    origins = corners_world[:, 2]
+    axes = np.stack(
+        [corners_world[:, 1] - origins, corners_world[:, 3] - origins,
+         corners_world[:, 6] - origins], axis=1
+    )  # fmt: skip
+    lengths = np.linalg.norm(axes, axis=2)
+    return origins, axes / lengths[..., None], lengths
+
+
 def _box_metres(
     points_world: NDArray[np.float64], corners_world: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Points `(N, 3)` in metres along the box's axes from its corner, and the box's size."""
     origin, units, lengths = _box_frame(corners_world)
     return (points_world - origin) @ units.T, lengths
-
-
-def _inside_box(
-    points_world: NDArray[np.float64],
-    corners_world: NDArray[np.float64],
-    margin_m: NDArray[np.float64],
-) -> NDArray[np.bool_]:
-    """Which points `(N, 3)` lie in the box (corners bottom face first), each within its
-    `margin_m` `(N,)` out from the sides and top, and `ABOVE_BOTTOM_M` in from the bottom."""
-    metres, lengths = _box_metres(points_world, corners_world)
-    margin = margin_m[:, None]
-    low = np.column_stack([-margin_m, -margin_m, np.full(len(margin_m), ABOVE_BOTTOM_M)])
-    return np.all((metres >= low) & (metres <= lengths + margin), axis=1)
 
 
 def visibility_level(share: float) -> int:

@@ -271,7 +271,7 @@ class SensorSuite:
         for result in returns.values():
             for track_id in result.track_ids:
                 radar_counts[track_id] = radar_counts.get(track_id, 0) + 1
-        boxes = []
+        annotated = []  # (track, body, corners) of each box to annotate
         for track in scenario.tracks:
             if track.track_id == scenario.ego_id or not track.valid[frame]:
                 continue
@@ -279,13 +279,21 @@ class SensorSuite:
             if np.hypot(*(centre_xy - ego_to_world[:2, 3])) > ANNOTATION_RANGE_M:
                 continue
             blueprint = world.blueprints[track.track_id]
-            body = world.bodies[track.track_id]
-            size = np.array(blueprint.size_m)
             corners = annotate.box_corners_3d(track, frame, blueprint.size_m)
-            shares = {
-                view.camera.name: annotate.visible_share(view, body, corners, ego_to_world)
-                for view in views
-            }
+            annotated.append((track, world.bodies[track.track_id], corners))
+        # (cameras, boxes): each view tests all its boxes at once
+        by_view = np.zeros((len(views), len(annotated)))
+        if annotated:
+            bodies = [body for _, body, _ in annotated]
+            all_corners = np.stack([corners for _, _, corners in annotated])
+            for k, view in enumerate(views):
+                by_view[k] = annotate.visible_shares(view, bodies, all_corners, ego_to_world)
+        boxes = []
+        for index, (track, body, corners) in enumerate(annotated):
+            centre_xy = np.array([track.x_m[frame], track.y_m[frame]])
+            blueprint = world.blueprints[track.track_id]
+            size = np.array(blueprint.size_m)
+            shares = {view.camera.name: float(by_view[k, index]) for k, view in enumerate(views)}
             share = max(shares.values(), default=0.0)
             centre_world = np.array([*centre_xy, corners[0, 2] + 0.5 * size[2]])
             centre_ego = (world_to_ego @ np.append(centre_world, 1.0))[:3]

@@ -111,7 +111,7 @@ def post_process(
             falloff *= np.float32(3.0)
             falloff += np.float32(1.0)
             night *= falloff[..., None]
-        night += sensor_noise(night.shape, rng) * np.float32(NIGHT_NOISE_SIGMA)
+        night += sensor_noise(night.shape, rng)
         np.clip(night, 0, 255, out=night)
         image = night.astype(np.uint8)
     if conditions.weather == Weather.RAIN:
@@ -149,15 +149,31 @@ def _uniform_image(shape: tuple[int, ...], rgb: tuple[int, int, int]) -> NDArray
     return image
 
 
-# 16.8 M standard-normal values (64 MiB), made once per process: twice a 1600x900 RGB image, so
-# the cameras' night noise is a window of it (drawn afresh, it took 100 ms a camera: the fog +
-# night clip's post-processing was 615 ms a frame on the H100 host, 0-95 ms on the other clips)
+# 16.8 M values of noise in 8-bit levels (16 MiB), made once per process: twice a 1600x900 RGB
+# image, so the cameras' night noise is a window of it (drawn afresh, it took 100 ms a camera: the
+# fog + night clip's post-processing was 615 ms a frame on the H100 host, 0-95 ms on the other
+# clips). Whole levels, so that a night image is one saturating 8-bit add (`cv2.add`, about 1 ms
+# a camera) instead of a pass through floats (4.4 ms here); the torch path adds the same levels.
 NOISE_POOL_VALUES = 1 << 24
 
 
+def noise_levels(values: NDArray[np.float32]) -> NDArray[np.int8]:
+    """Standard-normal `values` as sensor noise in whole 8-bit levels: times
+    `NIGHT_NOISE_SIGMA`, rounded, within an int8."""
+    levels = np.rint(values * np.float32(NIGHT_NOISE_SIGMA))
+    return np.clip(levels, -127, 127).astype(np.int8)
+
+
 @functools.cache
-def noise_pool() -> NDArray[np.float32]:
-    return np.random.default_rng(0x5EED).standard_normal(NOISE_POOL_VALUES, dtype=np.float32)
+def noise_pool() -> NDArray[np.int8]:
+    """The process's pool of noise levels (`noise_levels` of a fixed seed's normal values)."""
+    rng = np.random.default_rng(0x5EED)
+    pool = np.empty(NOISE_POOL_VALUES, np.int8)
+    block = NOISE_POOL_VALUES // 16  # a 64 MiB float array at once would only be thrown away
+    for start in range(0, NOISE_POOL_VALUES, block):
+        pool[start : start + block] = noise_levels(rng.standard_normal(block, dtype=np.float32))
+    pool.flags.writeable = False
+    return pool
 
 
 def noise_offset(size: int, rng: np.random.Generator) -> int | None:
@@ -168,14 +184,14 @@ def noise_offset(size: int, rng: np.random.Generator) -> int | None:
     return int(rng.integers(NOISE_POOL_VALUES - size + 1))
 
 
-def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np.float32]:
-    """Standard-normal noise of `shape`: a window of a fixed pool at an offset drawn from `rng`
-    (a 1024x768 image's noise in 2 ms, against 36 ms drawn afresh), so the same seed gives the
-    same noise in any process; images larger than the pool draw theirs afresh."""
+def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np.int8]:
+    """Sensor noise of `shape` in whole 8-bit levels (normal, sigma `NIGHT_NOISE_SIGMA`): a
+    window of a fixed pool at an offset drawn from `rng`, so the same seed gives the same noise
+    in any process; images larger than half the pool draw theirs afresh."""
     size = math.prod(shape)
     start = noise_offset(size, rng)
     if start is None:
-        return rng.standard_normal(shape, dtype=np.float32)
+        return noise_levels(rng.standard_normal(shape, dtype=np.float32))
     return noise_pool()[start : start + size].reshape(shape)
 
 
@@ -206,13 +222,14 @@ def _sensor_effects(
     rgb: NDArray[np.uint8], conditions: Conditions, light: Lighting, seed: int
 ) -> NDArray[np.uint8]:
     """What the camera adds over a shaded image: noise in low light, streaks in rain."""
+    import cv2
+
     rng = np.random.default_rng(seed)
     image = rgb
     if light.night:
-        noisy = rgb.astype(np.float32)
-        noisy += sensor_noise(noisy.shape, rng) * np.float32(NIGHT_NOISE_SIGMA)
-        np.clip(noisy, 0, 255, out=noisy)
-        image = noisy.astype(np.uint8)
+        image = np.ascontiguousarray(rgb)
+        noise = sensor_noise(image.shape, rng)
+        image = cv2.add(image, noise, dtype=cv2.CV_8U)  # saturating, in whole levels
     if conditions.weather == Weather.RAIN:
         image = _rain(np.ascontiguousarray(image), rng)
     return image

@@ -17,11 +17,11 @@ from drivee2e_data.sim.conditions import (
     FOG_RGB,
     HEADLIGHT_REACH_M,
     NIGHT_GAIN,
-    NIGHT_NOISE_SIGMA,
     RAIN_RGB,
     VISIBILITY_M,
     WET_DARKENING,
     Lighting,
+    noise_levels,
     noise_offset,
     noise_pool,
     rain_streaks,
@@ -61,11 +61,11 @@ def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: in
             night = night * _headlight_gain(depth_m)[..., None]
         start = noise_offset(night.numel(), rng)
         if start is None:
-            fresh = rng.standard_normal(tuple(night.shape), dtype=np.float32)
+            fresh = noise_levels(rng.standard_normal(tuple(night.shape), dtype=np.float32))
             noise = torch.as_tensor(fresh, device=night.device)
         else:
             noise = _device_pool(str(night.device))[start : start + night.numel()]
-        night = night + noise.reshape(night.shape) * NIGHT_NOISE_SIGMA
+        night = night + noise.reshape(night.shape).float()  # whole 8-bit levels
         image = torch.clamp(night, 0, 255).to(torch.uint8)  # truncates, as numpy's astype does
     if conditions.weather == Weather.RAIN:
         streaks = torch.as_tensor(rain_streaks(tuple(image.shape[:2]), rng), device=image.device)
@@ -106,4 +106,4 @@ def _device_pool(device: str):
     """The sensor-noise pool of `conditions`, copied to `device` once per process."""
     import torch
 
-    return torch.as_tensor(noise_pool(), device=device)
+    return torch.tensor(noise_pool(), device=device)  # a copy: the pool is read-only
