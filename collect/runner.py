@@ -41,7 +41,12 @@ from drivee2e_data.collect.segments import WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
-from drivee2e_data.processes import clean_up_when_stopped, stop_pool
+from drivee2e_data.processes import (
+    WORKER_THREADS,
+    clean_up_when_stopped,
+    one_thread_per_worker,
+    stop_pool,
+)
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sim import egl_devices
 
@@ -321,21 +326,15 @@ def _existing(scenario_id: str, path: Path) -> JobResult:
 _frames_done: multiprocessing.Queue | None = None
 
 
-# Mesa's llvmpipe renders with a thread per core; with a worker per core the threads only fight
-# (measured: 1.43 -> 1.56 frames/s with 2 workers on 2 cores), so each worker renders on one.
-# OpenCV's and torch's thread pools likewise: a pool per worker, each as large as the host.
-WORKER_ENVIRONMENT = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-
-
 def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[int, ...]) -> None:
     global _frames_done
     _frames_done = frames_done
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
-    for name, value in WORKER_ENVIRONMENT.items():
-        os.environ.setdefault(name, value)
-    import cv2  # torch, where the GPU post-processing imports it, reads OMP_NUM_THREADS
+    # one thread each for OpenCV too (llvmpipe's, OpenBLAS's, torch's: `one_thread_per_worker`;
+    # llvmpipe with a thread per core and a worker per core: 1.43 -> 1.56 frames/s on 2 cores)
+    import cv2
 
     cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
@@ -360,53 +359,54 @@ def _run_pool(
     up (one queued ahead), and a clip whose segments are all done has its log written next
     by the first free worker, ahead of the units still waiting: the logs get written while the
     collection goes on, by many processes, instead of piling up at the end."""
-    # spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
-    context = multiprocessing.get_context("spawn")
-    frames_done = context.Queue()
-    started = context.Value("i", 0)
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=context,
-        initializer=_init_worker,
-        initargs=(frames_done, started, gpus),
-    )
-    waiting = collections.deque(units)
-    merges: collections.deque[str] = collections.deque(tracker.ready)
-    running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
+    with one_thread_per_worker():  # the workers' native thread pools (`processes`)
+        # spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
+        context = multiprocessing.get_context("spawn")
+        frames_done = context.Queue()
+        started = context.Value("i", 0)
+        pool = ProcessPoolExecutor(
+            max_workers=workers,
+            mp_context=context,
+            initializer=_init_worker,
+            initargs=(frames_done, started, gpus),
+        )
+        waiting = collections.deque(units)
+        merges: collections.deque[str] = collections.deque(tracker.ready)
+        running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
 
-    def hand_out() -> None:
-        while len(running) < workers + 1 and (merges or waiting):
-            if merges:
-                clip = merges.popleft()
-                frames = tracker.clip_frames[clip]
-                job = pool.submit(segments.merge_clip, root, clip, options, frames)
-                running[job] = clip
-            else:
-                unit = waiting.popleft()
-                running[pool.submit(_pooled_unit, root, unit, options)] = unit
+        def hand_out() -> None:
+            while len(running) < workers + 1 and (merges or waiting):
+                if merges:
+                    clip = merges.popleft()
+                    frames = tracker.clip_frames[clip]
+                    job = pool.submit(segments.merge_clip, root, clip, options, frames)
+                    running[job] = clip
+                else:
+                    unit = waiting.popleft()
+                    running[pool.submit(_pooled_unit, root, unit, options)] = unit
 
-    try:
-        hand_out()
-        while running:
-            done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
-            _drain(frames_done, tick)
-            for future in done:
-                job = running.pop(future)
-                scenario_id = job if isinstance(job, str) else job.scenario_id
-                try:
-                    result = future.result()
-                except BrokenProcessPool:
-                    result = JobResult(scenario_id, "failed", error="the worker process died")
-                if isinstance(job, str):
-                    tracker.merged(job, result)
-                elif (clip := tracker.finished(job, result)) is not None:
-                    merges.append(clip)
+        try:
             hand_out()
-        _drain(frames_done, tick)
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown()
+            while running:
+                done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
+                _drain(frames_done, tick)
+                for future in done:
+                    job = running.pop(future)
+                    scenario_id = job if isinstance(job, str) else job.scenario_id
+                    try:
+                        result = future.result()
+                    except BrokenProcessPool:
+                        result = JobResult(scenario_id, "failed", error="the worker process died")
+                    if isinstance(job, str):
+                        tracker.merged(job, result)
+                    elif (clip := tracker.finished(job, result)) is not None:
+                        merges.append(clip)
+                hand_out()
+            _drain(frames_done, tick)
+        except BaseException:
+            stop_pool(pool)
+            raise
+        pool.shutdown()
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:
@@ -435,7 +435,7 @@ def _run_ray(
     import ray
 
     remote_unit = ray.remote(num_cpus=1)(_ray_unit).options(
-        runtime_env={"env_vars": WORKER_ENVIRONMENT}
+        runtime_env={"env_vars": WORKER_THREADS}
     )
     pending = {remote_unit.remote(root, u, options, gpus): u for u in units}
     try:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import atexit
 import json
 import multiprocessing
-import os
 import random
 import resource
 import signal
@@ -37,7 +36,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import clean_up_when_stopped, stop_pool
+from drivee2e_data.processes import clean_up_when_stopped, one_thread_per_worker, stop_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -280,10 +279,9 @@ def evaluate(
 
 
 def _init_worker() -> None:
-    # one thread per worker for llvmpipe, torch (OpenMP) and OpenCV: with a worker per core,
-    # their per-core threads only compete (a lone evaluation process keeps them all)
-    for name in ("LP_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(name, "1")
+    # one thread per worker for OpenCV and torch too (llvmpipe's, OpenBLAS's and OpenMP's are
+    # set for the workers by the parent, `one_thread_per_worker`): with a worker per core,
+    # per-core threads only compete (a lone evaluation process keeps them all)
     import cv2
     import torch  # reads OMP_NUM_THREADS when first imported (the command line imports none)
 
@@ -311,27 +309,30 @@ def _run_pool(
 ) -> None:
     # longest clips first: the last worker to finish then waits least for the others
     pending = sorted(pending, key=lambda s: -_frames(root, s))
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker)
-    try:
-        futures: dict[Future, str] = {
-            pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
-        }
-        remaining = set(futures)
-        while remaining:
-            done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
-            for future in done:
-                try:
-                    row = future.result()
-                except BrokenProcessPool:
-                    row = {"scenario_id": futures[future], "status": "error",
-                           "failure": "the worker process died"}  # fmt: skip
-                if on_episode is not None:
-                    on_episode(row)
-    except BaseException:
-        stop_pool(pool)
-        raise
-    pool.shutdown()
+    with one_thread_per_worker():  # the workers' native thread pools (`processes`)
+        context = multiprocessing.get_context("spawn")
+        pool = ProcessPoolExecutor(
+            max_workers=workers, mp_context=context, initializer=_init_worker
+        )
+        try:
+            futures: dict[Future, str] = {
+                pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
+            }
+            remaining = set(futures)
+            while remaining:
+                done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+                for future in done:
+                    try:
+                        row = future.result()
+                    except BrokenProcessPool:
+                        row = {"scenario_id": futures[future], "status": "error",
+                               "failure": "the worker process died"}  # fmt: skip
+                    if on_episode is not None:
+                        on_episode(row)
+        except BaseException:
+            stop_pool(pool)
+            raise
+        pool.shutdown()
 
 
 def _frames(root: Path, scenario_id: str) -> int:

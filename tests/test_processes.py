@@ -1,0 +1,47 @@
+"""Pool workers get one native thread each: the environment the parent sets while a pool spawns
+its workers, which OpenBLAS reads when numpy loads (before any of our code runs in a worker)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from drivee2e_data.processes import WORKER_THREADS, one_thread_per_worker
+
+# a child that loads numpy, multiplies 200,000 rows by a 3x3 matrix (the size the LiDAR's
+# rotations have) and reports its OpenBLAS setting and how many threads it runs
+CHILD = (
+    "import os, numpy as np; a = np.ones((200000, 3)); a @ np.ones((3, 3)); "
+    "print(os.getenv('OPENBLAS_NUM_THREADS'), len(os.listdir('/proc/self/task')))"
+)
+
+
+def child_threads() -> tuple[str, int]:
+    done = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True, check=True)
+    setting, threads = done.stdout.split()
+    return setting, int(threads)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="counts threads in /proc")
+def test_workers_spawned_under_one_thread_per_worker_run_numpy_on_one_thread(monkeypatch):
+    for name in WORKER_THREADS:
+        monkeypatch.delenv(name, raising=False)
+    with one_thread_per_worker():
+        assert child_threads() == ("1", 1)
+    assert all(name not in os.environ for name in WORKER_THREADS)  # the parent's, as it was
+    if len(os.sched_getaffinity(0)) > 1:  # without it OpenBLAS starts a thread per core
+        setting, threads = child_threads()
+        assert setting == "None" and threads > 1
+
+
+def test_a_setting_of_the_users_own_is_kept(monkeypatch):
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
+    monkeypatch.delenv("LP_NUM_THREADS", raising=False)
+    with one_thread_per_worker():
+        assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
+        assert os.environ["LP_NUM_THREADS"] == "1"
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
+    assert "LP_NUM_THREADS" not in os.environ
