@@ -357,3 +357,17 @@ def test_night_noise_on_a_shaded_image_is_a_saturating_add_of_the_levels():
     image = post_process(rgb, np.ones((90, 160), np.float32), conditions, night, 11, shaded=True)
     noise = sensor_noise(rgb.shape, np.random.default_rng(11))
     assert np.array_equal(image, np.clip(rgb.astype(int) + noise, 0, 255))
+
+
+def test_rain_streaks_blend_as_opencvs_blend_linear_does_at_the_pixels_they_touch():
+    import cv2
+
+    from drivee2e_data.sim.conditions import RAIN_RGB, _rain, rain_streaks
+
+    rgb = np.random.default_rng(2).integers(0, 256, (450, 800, 3), dtype=np.uint8)
+    for seed in range(4):
+        streaks = rain_streaks(rgb.shape[:2], np.random.default_rng(seed))
+        expected = cv2.blendLinear(rgb, np.full_like(rgb, RAIN_RGB), 1.0 - streaks, streaks)
+        rained = _rain(rgb, np.random.default_rng(seed))
+        assert np.array_equal(rained, expected)
+        assert 0.005 < (rained != rgb).any(axis=2).mean() < 0.2  # streaks, not the whole image

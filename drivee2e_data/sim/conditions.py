@@ -32,6 +32,7 @@ WET_DARKENING = 0.82  # road and ground pixels darken this much when wet or rain
 RAIN_STREAKS = 180
 RAIN_OPACITY = 0.35
 RAIN_RGB = 220  # the streaks' grey level
+BLEND_EPSILON = 1e-5  # OpenCV's blendLinear divides by w1 + w2 + 1e-5
 
 
 @dataclass(frozen=True)
@@ -196,12 +197,19 @@ def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np
 
 
 def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
-    """Bright, slanted streaks blended over the image."""
-    import cv2
-
+    """Bright, slanted streaks blended over the image: OpenCV's `blendLinear` arithmetic (the
+    same bytes), worked out only at the pixels the streaks touch, a few percent of the image
+    (a 1600x900 camera in 1.4 ms against 4.4-5.1 for blendLinear over all of it, one thread)."""
     streaks = rain_streaks(image.shape[:2], rng)
-    bright = np.full_like(image, RAIN_RGB)
-    return cv2.blendLinear(image, bright, 1.0 - streaks, streaks)
+    touched = np.flatnonzero(streaks > 0.0)  # a bool's flatnonzero: a tenth of a float's time
+    weight = streaks.ravel()[touched][:, None]
+    pixels = image.reshape(-1, image.shape[2])
+    blended = (pixels[touched] * (1.0 - weight) + np.float32(RAIN_RGB) * weight) / np.float32(
+        1.0 + BLEND_EPSILON
+    )
+    result = image.copy()
+    result.reshape(-1, image.shape[2])[touched] = np.clip(np.rint(blended), 0, 255)
+    return result
 
 
 def rain_streaks(shape: tuple[int, int], rng: np.random.Generator) -> NDArray[np.float32]:

@@ -14,6 +14,7 @@ import numpy as np
 
 from drivee2e_data.scenario import Conditions, Weather
 from drivee2e_data.sim.conditions import (
+    BLEND_EPSILON,
     FOG_RGB,
     HEADLIGHT_REACH_M,
     NIGHT_GAIN,
@@ -26,8 +27,6 @@ from drivee2e_data.sim.conditions import (
     noise_pool,
     rain_streaks,
 )
-
-BLEND_EPSILON = 1e-5  # OpenCV's blendLinear divides by w1 + w2 + 1e-5
 
 
 def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: int,
