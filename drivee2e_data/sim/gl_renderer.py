@@ -532,6 +532,7 @@ class GLRenderer:
         (its sun without weather or night: the top view) or "labels" (ids and depth only, RGB
         black). Depth is the fragment's own (float32), not read back from a depth buffer and
         linearised: finer than any depth buffer's step, and no CPU work."""
+        import cv2
         import moderngl
 
         if look not in LOOKS:
@@ -587,9 +588,12 @@ class GLRenderer:
                 self.context.depth_func = "<="
                 self.sky_array.render(moderngl.TRIANGLES, vertices=3)
                 self.context.depth_func = "<"
-            # read into fresh arrays: writable, and no copy of bytes
-            rgb = np.empty((height, width, 3), np.uint8)
-            framebuffer.read_into(rgb, components=3, attachment=0)
+            # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
+            # it (RGBA) and its alpha dropped by OpenCV: asking GL for RGB makes the driver
+            # convert on the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
+            rgba = np.empty((height, width, 4), np.uint8)
+            framebuffer.read_into(rgba, components=4, attachment=0)
+            rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
             depth_m = np.empty((height, width), np.float32)
             framebuffer.read_into(depth_m, components=1, attachment=2, dtype="f4")
             body = None
