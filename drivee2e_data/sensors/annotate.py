@@ -48,20 +48,41 @@ def projected_area(
     frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
 ) -> shapely.Geometry:
     """The box's projection clipped to the image, as a polygon in pixels (empty when behind)."""
+    in_front, pixels = _image_points(frame, corners_world[None], ego_to_world)
+    if not _over_image(frame, in_front, pixels)[0]:
+        return shapely.Polygon()  # behind, or wholly beside the image: no hull, no clip
+    camera = frame.camera
+    image = shapely.box(0, 0, camera.width, camera.height)
+    return shapely.MultiPoint(pixels[0][in_front[0]]).convex_hull.intersection(image)
+
+
+def _image_points(
+    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """Boxes' corners `(B, 8, 3)` in the camera's image: which lie in front of it `(B, 8)` and
+    their pixels `(B, 8, 2)` (meaningless where behind)."""
     camera = frame.camera
     to_world = camera_to_world(camera, ego_to_world)
     # a rigid transform's inverse: rotation transposed
     points = (corners_world - to_world[:3, 3]) @ to_world[:3, :3]
-    in_front = points[:, 2] > 0.1
-    if not in_front.any():
-        return shapely.Polygon()
-    pixels = (camera.intrinsic @ points[in_front].T).T
-    pixels = pixels[:, :2] / pixels[:, 2:3]
-    low, high = pixels.min(axis=0), pixels.max(axis=0)
-    if high[0] <= 0 or high[1] <= 0 or low[0] >= camera.width or low[1] >= camera.height:
-        return shapely.Polygon()  # wholly beside the image: spares shapely's hull and clip
-    image = shapely.box(0, 0, camera.width, camera.height)
-    return shapely.MultiPoint(pixels).convex_hull.intersection(image)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pixels = points @ camera.intrinsic.T
+        return points[..., 2] > 0.1, pixels[..., :2] / pixels[..., 2:3]
+
+
+def _over_image(
+    frame: CameraFrame, in_front: NDArray[np.bool_], pixels: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(B,) whether each box (`_image_points`) may show in the image: a corner in front of the
+    camera, and the bounding rectangle of those over the image."""
+    camera = frame.camera
+    low = np.where(in_front[..., None], pixels, np.inf).min(axis=1)
+    high = np.where(in_front[..., None], pixels, -np.inf).max(axis=1)
+    beside = (
+        (high[:, 0] <= 0) | (high[:, 1] <= 0)
+        | (low[:, 0] >= camera.width) | (low[:, 1] >= camera.height)
+    )  # fmt: skip
+    return in_front.any(axis=1) & ~beside
 
 
 def visible_share(
@@ -91,7 +112,7 @@ def visible_shares(
     view: the boxes' pixels gathered and tested together (a frame asks this of six views and
     up to a hundred boxes, and one box at a time the work was numpy's per-call overhead)."""
     shares = np.zeros(len(bodies))
-    may_show = _may_show(frame, corners_world, ego_to_world)
+    may_show = _over_image(frame, *_image_points(frame, corners_world, ego_to_world))
     covered = [
         _covered_pixels(frame, corners, ego_to_world) if shows else None
         for corners, shows in zip(corners_world, may_show, strict=True)
@@ -154,29 +175,6 @@ def visible_shares(
         share = np.where(seen > 0, 1.0 - hidden_count / passing, 0.0)
     shares[boxes] = share
     return shares
-
-
-def _may_show(
-    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
-) -> NDArray[np.bool_]:
-    """(B,) whether each box (B, 8, 3) may show in the camera's image at all: a corner in front
-    of it and the corners' bounding rectangle over the image (`projected_area`'s first tests,
-    for all boxes at once)."""
-    camera = frame.camera
-    to_world = camera_to_world(camera, ego_to_world)
-    points = (corners_world - to_world[:3, 3]) @ to_world[:3, :3]  # (B, 8, 3) camera frame
-    in_front = points[..., 2] > 0.1
-    with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = points @ camera.intrinsic.T
-        x = pixels[..., 0] / pixels[..., 2]
-        y = pixels[..., 1] / pixels[..., 2]
-    inf = np.inf
-    low_x = np.where(in_front, x, inf).min(axis=1)
-    low_y = np.where(in_front, y, inf).min(axis=1)
-    high_x = np.where(in_front, x, -inf).max(axis=1)
-    high_y = np.where(in_front, y, -inf).max(axis=1)
-    beside = (high_x <= 0) | (high_y <= 0) | (low_x >= camera.width) | (low_y >= camera.height)
-    return in_front.any(axis=1) & ~beside
 
 
 FLOAT_DEPTH_STEP = 2.0**-22  # float32's relative step (two units in the last place), with margin
@@ -249,19 +247,14 @@ def _box_frame(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """A box (corners bottom face first) as its corner at (-l/2, -w/2, bottom) `(3,)`, its unit
     axes along length, width and height `(3, 3)` and its size along them `(3,)`."""
-    origin = corners_world[2]
-    axes = np.stack(
-        [corners_world[1] - origin, corners_world[3] - origin, corners_world[6] - origin]
-    )
-    lengths = np.linalg.norm(axes, axis=1)
-    return origin, axes / lengths[:, None], lengths
+    origins, units, lengths = _box_frames(corners_world[None])
+    return origins[0], units[0], lengths[0]
 
 
 def _box_frames(
     corners_world: NDArray[np.float64],
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """`_box_frame` of B boxes `(B, 8, 3)` at once: corners `(B, 3)`, axes `(B, 3, 3)`,
-    sizes `(B, 3)`."""
+    """`_box_frame` of B boxes `(B, 8, 3)`: corners `(B, 3)`, axes `(B, 3, 3)`, sizes `(B, 3)`."""
     origins = corners_world[:, 2]
     axes = np.stack(
         [corners_world[:, 1] - origins, corners_world[:, 3] - origins,
