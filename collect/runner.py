@@ -16,7 +16,7 @@ import queue
 import signal
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -41,12 +41,7 @@ from drivee2e_data.collect.segments import WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
-from drivee2e_data.processes import (
-    WORKER_THREADS,
-    clean_up_when_stopped,
-    one_thread_per_worker,
-    stop_pool,
-)
+from drivee2e_data.processes import SPAWN, WORKER_THREADS, clean_up_when_stopped, worker_pool
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sim import egl_devices
 
@@ -359,17 +354,9 @@ def _run_pool(
     up (one queued ahead), and a clip whose segments are all done has its log written next
     by the first free worker, ahead of the units still waiting: the logs get written while the
     collection goes on, by many processes, instead of piling up at the end."""
-    with one_thread_per_worker():  # the workers' native thread pools (`processes`)
-        # spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
-        context = multiprocessing.get_context("spawn")
-        frames_done = context.Queue()
-        started = context.Value("i", 0)
-        pool = ProcessPoolExecutor(
-            max_workers=workers,
-            mp_context=context,
-            initializer=_init_worker,
-            initargs=(frames_done, started, gpus),
-        )
+    frames_done = SPAWN.Queue()
+    started = SPAWN.Value("i", 0)
+    with worker_pool(workers, _init_worker, (frames_done, started, gpus)) as pool:
         waiting = collections.deque(units)
         merges: collections.deque[str] = collections.deque(tracker.ready)
         running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
@@ -385,28 +372,23 @@ def _run_pool(
                     unit = waiting.popleft()
                     running[pool.submit(_pooled_unit, root, unit, options)] = unit
 
-        try:
-            hand_out()
-            while running:
-                done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
-                _drain(frames_done, tick)
-                for future in done:
-                    job = running.pop(future)
-                    scenario_id = job if isinstance(job, str) else job.scenario_id
-                    try:
-                        result = future.result()
-                    except BrokenProcessPool:
-                        result = JobResult(scenario_id, "failed", error="the worker process died")
-                    if isinstance(job, str):
-                        tracker.merged(job, result)
-                    elif (clip := tracker.finished(job, result)) is not None:
-                        merges.append(clip)
-                hand_out()
+        hand_out()
+        while running:
+            done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
-        except BaseException:
-            stop_pool(pool)
-            raise
-        pool.shutdown()
+            for future in done:
+                job = running.pop(future)
+                scenario_id = job if isinstance(job, str) else job.scenario_id
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    result = JobResult(scenario_id, "failed", error="the worker process died")
+                if isinstance(job, str):
+                    tracker.merged(job, result)
+                elif (clip := tracker.finished(job, result)) is not None:
+                    merges.append(clip)
+            hand_out()
+        _drain(frames_done, tick)
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 
@@ -34,6 +35,28 @@ def one_thread_per_worker() -> Iterator[None]:
     finally:
         for name in added:
             os.environ.pop(name, None)
+
+
+# spawn: a fresh interpreter per worker, no pybullet or EGL state inherited from the parent
+SPAWN = multiprocessing.get_context("spawn")
+
+
+@contextmanager
+def worker_pool(
+    workers: int, initializer: Callable[..., None], initargs: Sequence[object] = ()
+) -> Iterator[ProcessPoolExecutor]:
+    """A pool of `workers` spawned processes (`SPAWN`; queues and values they share are made
+    from it too), each with one native thread (`one_thread_per_worker`), shut down when the
+    block ends; stopped at once (`stop_pool`) when it raises or is interrupted."""
+    with one_thread_per_worker():
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=SPAWN,
+                                   initializer=initializer, initargs=tuple(initargs))  # fmt: skip
+        try:
+            yield pool
+        except BaseException:
+            stop_pool(pool)
+            raise
+        pool.shutdown()
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:

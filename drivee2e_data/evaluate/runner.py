@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import atexit
 import json
-import multiprocessing
 import random
 import resource
 import signal
@@ -20,7 +19,7 @@ import sys
 import time
 import zlib
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -36,7 +35,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import clean_up_when_stopped, one_thread_per_worker, stop_pool
+from drivee2e_data.processes import clean_up_when_stopped, worker_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -309,30 +308,21 @@ def _run_pool(
 ) -> None:
     # longest clips first: the last worker to finish then waits least for the others
     pending = sorted(pending, key=lambda s: -_frames(root, s))
-    with one_thread_per_worker():  # the workers' native thread pools (`processes`)
-        context = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(
-            max_workers=workers, mp_context=context, initializer=_init_worker
-        )
-        try:
-            futures: dict[Future, str] = {
-                pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
-            }
-            remaining = set(futures)
-            while remaining:
-                done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
-                for future in done:
-                    try:
-                        row = future.result()
-                    except BrokenProcessPool:
-                        row = {"scenario_id": futures[future], "status": "error",
-                               "failure": "the worker process died"}  # fmt: skip
-                    if on_episode is not None:
-                        on_episode(row)
-        except BaseException:
-            stop_pool(pool)
-            raise
-        pool.shutdown()
+    with worker_pool(workers, _init_worker) as pool:
+        futures: dict[Future, str] = {
+            pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
+        }
+        remaining = set(futures)
+        while remaining:
+            done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    row = future.result()
+                except BrokenProcessPool:
+                    row = {"scenario_id": futures[future], "status": "error",
+                           "failure": "the worker process died"}  # fmt: skip
+                if on_episode is not None:
+                    on_episode(row)
 
 
 def _frames(root: Path, scenario_id: str) -> int:
