@@ -68,10 +68,11 @@ def plan(
     gpu: bool | None = None,
     renderer: str = "auto",
     gpus: int = 0,
+    sensor_every: int = 1,
 ) -> HostPlan:
-    """Workers and LiDAR for collecting `frames` frames (over all clips) here with `renderer`
-    (the measurements may be given; "auto" is resolved by trying the renderers,
-    `sim.world.resolve_renderer`). Every worker does its own CPU work (LiDAR, boxes, JPEG), so
+    """Workers and LiDAR for collecting `frames` frames (over all clips, sensors at every
+    `sensor_every`-th) here with `renderer` (the measurements may be given; "auto" is resolved
+    by trying the renderers, `sim.world.resolve_renderer`). Every worker does its own CPU work (LiDAR, boxes, JPEG), so
     the GPUs (`gpus`, those the workers share) do not add workers. Camera images are finished on
     the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU (`--post-process
     cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
@@ -79,7 +80,7 @@ def plan(
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
     renderer = resolve_renderer(renderer)
-    units = max(1, frames // MIN_SEGMENT_FRAMES)
+    units = max(1, frames // (MIN_SEGMENT_FRAMES * sensor_every))
     workers = max(1, min(cores, units, int(memory // WORKER_MEMORY_GIB)))
     lidar = "raycast" if renderer == "tiny" else "depth"
     return HostPlan(workers, lidar, cores, memory, gpu, renderer, gpus if renderer == "gl" else 0)

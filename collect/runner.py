@@ -136,7 +136,7 @@ def _plan(
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept
-    units = segments.plan_units(clip_frames, covered, workers, maps)
+    units = segments.plan_units(clip_frames, covered, workers, maps, options.sensor_every)
     return [*units, *unreadable], clip_frames
 
 

@@ -48,7 +48,9 @@ SUFFIX = ".segment"
 TEMPORARY_SUFFIX = ".segment-tmp"
 MAGIC, END = b"DE2ESEG1", b"END!"
 # a unit's fixed cost is setting up its clip's world (0.4-1 s, docs/benchmarks.md) against
-# 0.1-0.5 s a frame per worker: units shorter than this spend more than a tenth on set-up
+# 0.1-0.5 s a sensor frame per worker: units with fewer sensor frames than this spend more
+# than a tenth on set-up. At `--sensor-hz 2` a frame without sensors costs next to nothing
+# (the ego, boxes and traffic only: a few ms), so a unit needs five times the frames
 MIN_SEGMENT_FRAMES = 25
 # units per worker when a set is cut: enough that the last units to finish are short, few
 # enough that each worker sets up only a few worlds more than with whole clips
@@ -77,11 +79,13 @@ class WorkUnit:
         return f"{self.start:06d}-{self.stop:06d}"
 
 
-def segment_length(total_frames: int, workers: int) -> int | None:
-    """Frames per unit for `total_frames` over `workers` (None: no cutting, whole clips)."""
+def segment_length(total_frames: int, workers: int, sensor_every: int = 1) -> int | None:
+    """Frames per unit for `total_frames` over `workers` (None: no cutting, whole clips), with
+    sensors at every `sensor_every`-th frame: at least `MIN_SEGMENT_FRAMES` sensor frames."""
     if workers <= 1:
         return None
-    return max(MIN_SEGMENT_FRAMES, math.ceil(total_frames / (workers * UNITS_PER_WORKER)))
+    shortest = MIN_SEGMENT_FRAMES * sensor_every
+    return max(shortest, math.ceil(total_frames / (workers * UNITS_PER_WORKER)))
 
 
 def plan_units(
@@ -89,15 +93,18 @@ def plan_units(
     covered: dict[str, list[tuple[int, int]]],
     workers: int,
     maps: dict[str, str] | None = None,
+    sensor_every: int = 1,
 ) -> list[WorkUnit]:
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
     frame ranges in `covered` are already in segment files: every frame not covered, cut into
-    units of about `segment_length` frames, longest first. Within a length, units of clips on
+    units of about `segment_length` frames (sensors at every `sensor_every`-th), longest
+    first. Within a length, units of clips on
     one map (`maps`: scenario id -> map id) follow each other, in the order the maps first
     appear, then the clips' order: a worker taking the next unit then mostly keeps the world it
     has set up (`sim.world.world_for` rebuilds the twin only for another map)."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
-    length = segment_length(sum(b - a for g in gaps.values() for a, b in g), workers)
+    frames = sum(b - a for g in gaps.values() for a, b in g)
+    length = segment_length(frames, workers, sensor_every)
     units = []
     for scenario_id, ranges in gaps.items():
         whole = ranges == [(0, clip_frames[scenario_id])]

@@ -13,10 +13,10 @@ from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.collect import segments
+from drivee2e_data.collect import host, segments
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import collect
-from drivee2e_data.collect.segments import WorkUnit, plan_units, uncovered
+from drivee2e_data.collect.segments import WorkUnit, plan_units, segment_length, uncovered
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
 
@@ -45,6 +45,23 @@ def test_a_set_is_cut_into_units_longest_first():
     # 16 workers on 1600 frames: 25 frames a unit, 64 units
     many = plan_units({f"c{k}": 100 for k in range(16)}, {}, workers=16)
     assert len(many) == 64 and {u.frames for u in many} == {25}
+
+
+def test_keyframe_rate_units_hold_as_many_sensor_frames():
+    """At 2 Hz a unit needs five times the frames for its 25 sensor frames: 16 workers on
+    16 clips of 200 frames make 32 units of 100 frames (64 of 50 at 10 Hz), so fewer worlds are
+    set up for the same sensor work."""
+    clips = {f"c{k}": 200 for k in range(16)}
+    at_10_hz = plan_units(clips, {}, workers=16)
+    assert len(at_10_hz) == 64 and {u.frames for u in at_10_hz} == {50}
+    at_2_hz = plan_units(clips, {}, workers=16, sensor_every=5)
+    assert len(at_2_hz) == 32 and {u.frames for u in at_2_hz} == {100}
+    assert segment_length(3200, 16, sensor_every=5) == 125
+    assert segment_length(3200, 16) == 50 and segment_length(3200, 1, sensor_every=5) is None
+    # the host plan counts units the same way: no more workers than units
+    assert host.plan(3200, cores=64, memory=512.0, gpu=False, renderer="tiny").workers == 64
+    sparse = host.plan(3200, cores=64, memory=512.0, gpu=False, renderer="tiny", sensor_every=5)
+    assert sparse.workers == 3200 // 125
 
 
 def test_units_of_one_length_are_grouped_by_map():

@@ -173,7 +173,10 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
             collect_runner.frames_to_collect(args.data, s, args.max_frames) or 0
             for s in scenario_ids
         )
-        host = collect_host.plan(frames, renderer=args.renderer, gpus=len(gpus))
+        sensor_every = topics.FRAME_RATE_HZ // args.sensor_hz
+        host = collect_host.plan(
+            frames, renderer=args.renderer, gpus=len(gpus), sensor_every=sensor_every
+        )
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar
     options = CollectOptions(

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.scenario import AgentClass, Track
 from drivee2e_data.sim.models import ModelMesh
+from drivee2e_data.sim.obj_text import obj_text
 
 # pybullet takes at most 16 shapes in one compound (MAX_COMPOUND_COLLISION_SHAPES in its
 # shared-memory commands; the rest are dropped without a word)
@@ -115,9 +116,7 @@ def _part_files(model: ModelMesh, folder: Path) -> list[str]:
     for index, part in enumerate(parts):
         path = folder / f"actor_{key:08x}_{index:02d}.obj"
         if not path.exists():
-            lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in part]
-            lines += [f"f {k + 1} {k + 2} {k + 3}" for k in range(0, len(part) - 2, 3)]
-            path.write_text("\n".join(lines) + "\n")
+            path.write_text(obj_text(part))
         names.append(str(path))
     return names
 

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.models.mesh import Material, box_mesh
+from drivee2e_data.sim.obj_text import obj_text
 from drivee2e_data.sim.scenery import (
     WearRaster,
     generated_buildings,
@@ -197,16 +198,12 @@ class TwinBuilder:
         cannot take meshes given as vertex lists (it crashes); the collision shape (a static
         triangle mesh) is what LiDAR rays hit. Without `collide` the collision shape is -1."""
         path = self.twin.mesh_dir / f"mesh_{len(self.twin.bodies):05d}.obj"
-        vertices = np.concatenate(batch.vertices)
-        triangles = np.concatenate(batch.indices).reshape(-1, 3) + 1
-        lines = [f"v {x:.4f} {y:.4f} {z:.4f}" for x, y, z in vertices]
+        normals = None
         if all(n is not None for n in batch.normals):
             normals = np.concatenate(batch.normals)
-            lines += [f"vn {x:.4f} {y:.4f} {z:.4f}" for x, y, z in normals]
-            lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in triangles]
-        else:
-            lines += [f"f {a} {b} {c}" for a, b, c in triangles]
-        path.write_text("\n".join(lines) + "\n")
+        path.write_text(
+            obj_text(np.concatenate(batch.vertices), np.concatenate(batch.indices), normals)
+        )
         visual = self.p.createVisualShape(
             self.p.GEOM_MESH, fileName=str(path), rgbaColor=rgba, physicsClientId=self.client
         )
