@@ -108,7 +108,13 @@ def remove_world_files() -> None:
         _world.twin.remove_files()
 
 
-def _world_for(root: Path, scenario_id: str, renderer: str, post_process: str = "cpu") -> World:
+def _world_for(
+    root: Path,
+    scenario_id: str,
+    renderer: str,
+    post_process: str = "cpu",
+    frames: range | None = None,
+) -> World:
     global _world
     if post_process == "cuda" and not camera_gpu.cuda_started():
         if _world is not None:  # CUDA must start before any EGL context (camera_gpu.prepare)
@@ -116,7 +122,9 @@ def _world_for(root: Path, scenario_id: str, renderer: str, post_process: str = 
             _world = None
         camera_gpu.prepare(post_process)
     scenario = store.read_scenario(root, scenario_id)
-    _world = world_for(_world, scenario, lambda map_id: store.read_map(root, map_id), renderer)
+    _world = world_for(
+        _world, scenario, lambda map_id: store.read_map(root, map_id), renderer, frames
+    )
     return _world
 
 
@@ -146,9 +154,12 @@ class ClipSetup:
     labels: dict[str, str] | None  # the log's drivee2e.camera_labels record
 
 
-def open_clip(root: Path, scenario_id: str, options: CollectOptions) -> ClipSetup:
-    """This process's world for the clip (its twin kept when the map is the same) and the rig."""
-    world = _world_for(Path(root), scenario_id, options.renderer, options.post_process)
+def open_clip(
+    root: Path, scenario_id: str, options: CollectOptions, frames: range | None = None
+) -> ClipSetup:
+    """This process's world for the clip (its twin kept when the map is the same), set up for
+    `frames` of it (all for None: `World.replay`), and the rig."""
+    world = _world_for(Path(root), scenario_id, options.renderer, options.post_process, frames)
     suite = SensorSuite(world, options.suite())
     collection = {
         "renderer": world.renderer,
@@ -208,7 +219,8 @@ def collect_clip(
         return JobResult(scenario_id, "skipped", log_bytes=path.stat().st_size)
 
     def work(result: JobResult) -> None:
-        setup = open_clip(root, scenario_id, options)
+        first = None if options.max_frames is None else range(options.max_frames)
+        setup = open_clip(root, scenario_id, options, first)
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
         frames = range(planned_frames(scenario.num_frames, options.max_frames))

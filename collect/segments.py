@@ -256,7 +256,7 @@ def collect_segment(
     folder = segments_dir(root, unit.scenario_id)
 
     def work(result: JobResult) -> None:
-        setup = open_clip(root, unit.scenario_id, options)
+        setup = open_clip(root, unit.scenario_id, options, range(unit.start, unit.stop))
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
         encoder = FrameEncoder(

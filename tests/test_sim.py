@@ -12,7 +12,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
 from drivee2e_data.sim.twin import CROWN_RGBAS, FACADE_RGBAS
-from drivee2e_data.sim.world import World, connect
+from drivee2e_data.sim.world import World, connect, tracks_shown_in
 from tests.factories import egl_world, front_view, synthetic_clip
 
 
@@ -49,6 +49,27 @@ def test_invalid_agents_are_hidden(world, clip):
     frame = int(np.flatnonzero(~track.valid)[0])
     world.set_time(frame)
     assert world.actor_pose(track.track_id)[0][2] < -50
+
+
+def test_a_world_for_some_frames_models_only_the_actors_in_them(world, clip):
+    """A collection unit's world: models for the tracks valid in its frames (and the ego), a
+    body for every track in the same order (so the ids match a whole clip's world), and a
+    clear error if asked to show a frame where an unmodelled track appears."""
+    intersection_map, scenario = clip
+    frames = range(0, 10)
+    expected = tracks_shown_in(scenario, frames)
+    valid_early = {t.track_id for t in scenario.tracks if t.valid[:10].any()}
+    assert expected == valid_early | {scenario.ego.track_id}
+    assert len(expected) < len(scenario.tracks)  # some tracks appear later
+    assert tracks_shown_in(scenario, None) == {t.track_id for t in scenario.tracks}
+    with World(intersection_map, scenario, renderer="tiny", draw_radius_m=1e6,
+               frames=frames) as part:  # fmt: skip
+        assert set(part.models) == expected
+        assert part.bodies == world.bodies
+        part.set_time(9)
+        late = next(t for t in scenario.tracks if t.track_id not in expected and t.valid.any())
+        with pytest.raises(DriveE2EError, match=f"track {late.track_id!r} shows"):
+            part.set_time(int(np.flatnonzero(late.valid)[0]))
 
 
 def _look_at_head(world, intersection_map, signal_id):

@@ -409,12 +409,10 @@ class GLRenderer:
         moving = [body for body in present if body not in self.static]
         parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
         for body in moving:
+            position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=client)
+            if position[2] < HIDDEN_BELOW_M:
+                continue
             if body in self.models:
-                position, orientation = p.getBasePositionAndOrientation(
-                    body, physicsClientId=client
-                )
-                if position[2] < HIDDEN_BELOW_M:
-                    continue
                 animation = animations.get(body, Animation())
                 parts.append(self._placed(body, position, orientation, animation))
             else:

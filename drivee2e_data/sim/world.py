@@ -155,6 +155,7 @@ class World:
         scenario: Scenario,
         renderer: str = "auto",
         draw_radius_m: float = 120.0,
+        frames: range | None = None,
     ) -> None:
         with quiet_native_output():
             import pybullet
@@ -170,7 +171,7 @@ class World:
         self.state = 0  # counts changes to what is drawn (poses, lamps, actors)
         self.animations: dict[int, Animation] = {}  # body -> its model's pose inputs now
         self.scene_lights = SceneLights()
-        self.replay(scenario)
+        self.replay(scenario, frames)
         if self.renderer == "gl":
             lamps = {body for head in self.twin.lamps.values() for body, _ in head}
             kind_rank = {kind: rank for rank, kind in enumerate(GL_DRAW_ORDER)}
@@ -180,9 +181,13 @@ class World:
                                  self.twin.street_lamps, self.twin.wear)  # fmt: skip
             self.gl.set_models(self.body_models())
 
-    def replay(self, scenario: Scenario) -> None:
+    def replay(self, scenario: Scenario, frames: range | None = None) -> None:
         """Swap in another clip of the same map: its actors replace the previous clip's, the
-        twin stays (a twin is built once per map and reused for the map's clips)."""
+        twin stays (a twin is built once per map and reused for the map's clips). With
+        `frames`, the world will show only those of the clip's frames: actors that appear in
+        none of them get no procedural model (a collection unit of 50 frames shows about half
+        of a clip's actors, and the models were the larger part of its set-up); their bodies
+        are still made, in the same order, so every body keeps its id."""
         if scenario.map_id != self.intersection_map.map_id:
             raise DriveE2EError(
                 f"scenario {scenario.scenario_id!r} is on map {scenario.map_id!r}, this world shows "
@@ -194,16 +199,17 @@ class World:
         self.blueprints: dict[str, Blueprint] = {
             t.track_id: choose_blueprint(t) for t in scenario.tracks
         }
+        shown = tracks_shown_in(scenario, frames)
         self.models: dict[str, ModelMesh] = {
             t.track_id: agent_model(t.agent_class, self.blueprints[t.track_id].name,
                                     self.blueprints[t.track_id].size_m, t.track_id)
-            for t in scenario.tracks
+            for t in scenario.tracks if t.track_id in shown
         }  # fmt: skip
         self.motions: dict[str, TrackMotion] = {
             t.track_id: track_motion(t) for t in scenario.tracks
         }
         self.bodies = {
-            track_id: create_actor(self.client, bp, self.models[track_id], self.twin.mesh_dir)
+            track_id: create_actor(self.client, bp, self.models.get(track_id), self.twin.mesh_dir)
             for track_id, bp in self.blueprints.items()
         }
         self.lighting = lighting(scenario.conditions, self.intersection_map.origin)
@@ -324,6 +330,11 @@ class World:
                 )
             )
             if visible:
+                if track.track_id not in self.models:
+                    raise DriveE2EError(
+                        f"{self.scenario.scenario_id} frame {frame}: track {track.track_id!r} "
+                        "shows, but this world was set up for frames it is absent from"
+                    )
                 position, orientation = self._logged_placement(track, frame)
                 shown[track.track_id] = (position[0], position[1], float(track.yaw_rad[frame]))
             else:
@@ -552,10 +563,11 @@ def world_for(
     scenario: Scenario,
     read_map: Callable[[str], IntersectionMap],
     renderer: str = "auto",
+    frames: range | None = None,
 ) -> World:
-    """A world showing `scenario`: `previous` itself when it shows the same map with a renderer
-    that suits (a twin takes a second or two to build) and can still render, else a new one
-    (`previous` closed)."""
+    """A world showing `scenario` (only its `frames` where given: `World.replay`): `previous`
+    itself when it shows the same map with a renderer that suits (a twin takes a second or
+    two to build) and can still render, else a new one (`previous` closed)."""
     if previous is not None and (
         previous.intersection_map.map_id != scenario.map_id
         or renderer not in ("auto", previous.renderer)
@@ -564,6 +576,18 @@ def world_for(
         previous.close()
         previous = None
     if previous is None:
-        return World(read_map(scenario.map_id), scenario, renderer=renderer)
-    previous.replay(scenario)
+        return World(read_map(scenario.map_id), scenario, renderer=renderer, frames=frames)
+    previous.replay(scenario, frames)
     return previous
+
+
+def tracks_shown_in(scenario: Scenario, frames: range | None) -> set[str]:
+    """The tracks a world showing `frames` of `scenario` may draw (all for None): those valid
+    in any of them, and the ego, whose shadow its cameras see."""
+    if frames is None:
+        return {track.track_id for track in scenario.tracks}
+    first, stop = max(frames.start, 0), min(frames.stop, scenario.num_frames)
+    shown = {track.track_id for track in scenario.tracks if track.valid[first:stop].any()}
+    if scenario.ego is not None:
+        shown.add(scenario.ego.track_id)
+    return shown
