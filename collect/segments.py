@@ -98,12 +98,10 @@ def plan_units(
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
     frame ranges in `covered` are already in segment files: every frame not covered, cut into
     units of about `segment_length` frames (sensors at every `sensor_every`-th), longest
-    first, and the last wave's units (a unit per worker's worth of frames) cut in halves where
-    each half keeps `MIN_SEGMENT_FRAMES` sensor frames: the workers' last units then end
-    closer together (`_halve_last_wave`). Within a length, units of clips on one map (`maps`:
-    scenario id -> map id) follow each other, in the order the maps first appear, then the
-    clips' order: a worker taking the next unit then mostly keeps the world it has set up
-    (`sim.world.world_for` rebuilds the twin only for another map)."""
+    first. Within a length, units of clips on
+    one map (`maps`: scenario id -> map id) follow each other, in the order the maps first
+    appear, then the clips' order: a worker taking the next unit then mostly keeps the world it
+    has set up (`sim.world.world_for` rebuilds the twin only for another map)."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
     frames = sum(b - a for g in gaps.values() for a, b in g)
     length = segment_length(frames, workers, sensor_every)
@@ -121,38 +119,8 @@ def plan_units(
     rank: dict[str, int] = {}
     for scenario_id in clip_frames:
         rank.setdefault(maps.get(scenario_id, scenario_id), len(rank))
-
-    def in_order(planned: list[WorkUnit]) -> list[WorkUnit]:
-        # stable: clip order kept within a length and a map
-        return sorted(
-            planned, key=lambda u: (-u.frames, rank[maps.get(u.scenario_id, u.scenario_id)])
-        )
-
-    if length is None:
-        return in_order(units)
-    return in_order(
-        _halve_last_wave(in_order(units), workers * length, MIN_SEGMENT_FRAMES * sensor_every)
-    )
-
-
-def _halve_last_wave(units: list[WorkUnit], wave_frames: int, shortest: int) -> list[WorkUnit]:
-    """`units` (longest first) with the trailing ones that hold the last `wave_frames` frames
-    cut in two where both halves keep `shortest` frames. On an H100 host the workers' last
-    units of about 11 s ended over 10 s (their frames cost 0.7-1.1x the mean), and the
-    workers that ended first waited: halves end twice as close, for a set-up each
-    (docs/benchmarks.md)."""
-    kept, last_wave, frames = list(units), [], 0
-    while kept and frames + kept[-1].frames <= wave_frames:
-        frames += kept[-1].frames
-        last_wave.append(kept.pop())
-    for unit in reversed(last_wave):
-        if unit.frames < 2 * shortest:
-            kept.append(unit)
-            continue
-        middle = unit.start + unit.frames // 2
-        kept += [WorkUnit(unit.scenario_id, unit.start, middle),
-                 WorkUnit(unit.scenario_id, middle, unit.stop)]  # fmt: skip
-    return kept
+    # stable: clip order kept within a length and a map
+    return sorted(units, key=lambda u: (-u.frames, rank[maps.get(u.scenario_id, u.scenario_id)]))
 
 
 def uncovered(frames: int, ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:

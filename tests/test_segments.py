@@ -42,40 +42,18 @@ def test_a_set_is_cut_into_units_longest_first():
         WorkUnit("a", 0, 100, whole=True),
         WorkUnit("b", 0, 30, whole=True),
     ]
-    # 16 workers on 1600 frames: 25 frames a unit, 64 units (too short to halve)
+    # 16 workers on 1600 frames: 25 frames a unit, 64 units
     many = plan_units({f"c{k}": 100 for k in range(16)}, {}, workers=16)
     assert len(many) == 64 and {u.frames for u in many} == {25}
 
 
-def test_the_last_wave_is_cut_in_halves_so_workers_end_together():
-    """Two workers on two clips of 300 frames: units of 75 frames, and the last wave (two
-    units' worth, clip b's last two) cut in halves of 37-38 frames, which still keep the
-    25-frame minimum; every frame planned once."""
-    units = plan_units({"a": 300, "b": 300}, {}, workers=2)
-    assert [(u.scenario_id, u.start, u.stop) for u in units] == [
-        ("a", 0, 75), ("a", 75, 150), ("a", 150, 225), ("a", 225, 300), ("b", 0, 75),
-        ("b", 75, 150), ("b", 187, 225), ("b", 262, 300), ("b", 150, 187), ("b", 225, 262),
-    ]  # fmt: skip
-    assert sorted((u.start, u.stop) for u in units if u.scenario_id == "b") == [
-        (0, 75),
-        (75, 150),
-        (150, 187),
-        (187, 225),
-        (225, 262),
-        (262, 300),
-    ]
-    # units that would halve below 25 frames stay as they are
-    short = plan_units({"a": 100, "b": 100, "c": 60}, {}, workers=2)
-    assert sorted(u.frames for u in short) == [25] * 8 + [30, 30]
-
-
 def test_keyframe_rate_units_hold_as_many_sensor_frames():
     """At 2 Hz a unit needs five times the frames for its 25 sensor frames: 16 workers on
-    16 clips of 200 frames make 32 units of 100 frames (64 of 50 at 10 Hz, the last wave's 16
-    then halved), so fewer worlds are set up for the same sensor work."""
+    16 clips of 200 frames make 32 units of 100 frames (64 of 50 at 10 Hz), so fewer worlds are
+    set up for the same sensor work."""
     clips = {f"c{k}": 200 for k in range(16)}
     at_10_hz = plan_units(clips, {}, workers=16)
-    assert [u.frames for u in at_10_hz] == [50] * 48 + [25] * 32
+    assert len(at_10_hz) == 64 and {u.frames for u in at_10_hz} == {50}
     at_2_hz = plan_units(clips, {}, workers=16, sensor_every=5)
     assert len(at_2_hz) == 32 and {u.frames for u in at_2_hz} == {100}
     assert segment_length(3200, 16, sensor_every=5) == 125
