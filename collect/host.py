@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivee2e_data.collect.segments import MIN_SEGMENT_FRAMES
+from drivee2e_data.collect.segments import shortest_unit
 from drivee2e_data.sim.world import resolve_renderer
 
 RENDERER_NAMES = {"gl": "GL renderer", "egl": "pybullet EGL", "tiny": "TinyRenderer"}
@@ -72,15 +72,16 @@ def plan(
 ) -> HostPlan:
     """Workers and LiDAR for collecting `frames` frames (over all clips, sensors at every
     `sensor_every`-th) here with `renderer` (the measurements may be given; "auto" is resolved
-    by trying the renderers, `sim.world.resolve_renderer`). Every worker does its own CPU work (LiDAR, boxes, JPEG), so
-    the GPUs (`gpus`, those the workers share) do not add workers. Camera images are finished on
-    the CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU (`--post-process
+    by trying the renderers, `sim.world.resolve_renderer`), no more workers than units
+    (`segments.shortest_unit`). Every worker does its own CPU work (LiDAR, boxes, JPEG), so the
+    GPUs (`gpus`, those the workers share) do not add workers. Camera images are finished on the
+    CPU wherever: on an H100 host, 16 workers finishing theirs on the GPU (`--post-process
     cuda`) collected 0.65x as fast (docs/benchmarks.md)."""
     cores = usable_cores() if cores is None else cores
     memory = memory_gib() if memory is None else memory
     gpu = nvidia_gpu() if gpu is None else gpu
     renderer = resolve_renderer(renderer)
-    units = max(1, frames // (MIN_SEGMENT_FRAMES * sensor_every))
+    units = max(1, frames // shortest_unit(sensor_every))
     workers = max(1, min(cores, units, int(memory // WORKER_MEMORY_GIB)))
     lidar = "raycast" if renderer == "tiny" else "depth"
     return HostPlan(workers, lidar, cores, memory, gpu, renderer, gpus if renderer == "gl" else 0)

@@ -49,10 +49,7 @@ class CollectOptions:
     @property
     def sensor_every(self) -> int:
         """Sensors at every n-th frame."""
-        if self.sensor_hz not in topics.SENSOR_RATES_HZ:
-            rates = ", ".join(map(str, topics.SENSOR_RATES_HZ))
-            raise ValueError(f"sensor_hz {self.sensor_hz}: expected one of {rates}")
-        return topics.FRAME_RATE_HZ // self.sensor_hz
+        return topics.sensor_every(self.sensor_hz)
 
     def suite(self) -> SuiteOptions:
         return SuiteOptions(

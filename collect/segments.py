@@ -79,13 +79,19 @@ class WorkUnit:
         return f"{self.start:06d}-{self.stop:06d}"
 
 
+def shortest_unit(sensor_every: int = 1) -> int:
+    """The fewest frames a unit holds with sensors at every `sensor_every`-th frame:
+    `MIN_SEGMENT_FRAMES` sensor frames."""
+    return MIN_SEGMENT_FRAMES * sensor_every
+
+
 def segment_length(total_frames: int, workers: int, sensor_every: int = 1) -> int | None:
     """Frames per unit for `total_frames` over `workers` (None: no cutting, whole clips), with
-    sensors at every `sensor_every`-th frame: at least `MIN_SEGMENT_FRAMES` sensor frames."""
+    sensors at every `sensor_every`-th frame (at least `shortest_unit`)."""
     if workers <= 1:
         return None
-    shortest = MIN_SEGMENT_FRAMES * sensor_every
-    return max(shortest, math.ceil(total_frames / (workers * UNITS_PER_WORKER)))
+    per_unit = math.ceil(total_frames / (workers * UNITS_PER_WORKER))
+    return max(shortest_unit(sensor_every), per_unit)
 
 
 def plan_units(
@@ -98,10 +104,10 @@ def plan_units(
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
     frame ranges in `covered` are already in segment files: every frame not covered, cut into
     units of about `segment_length` frames (sensors at every `sensor_every`-th), longest
-    first. Within a length, units of clips on
-    one map (`maps`: scenario id -> map id) follow each other, in the order the maps first
-    appear, then the clips' order: a worker taking the next unit then mostly keeps the world it
-    has set up (`sim.world.world_for` rebuilds the twin only for another map)."""
+    first. Within a length, units of clips on one map (`maps`: scenario id -> map id) follow
+    each other, in the order the maps first appear, then the clips' order: a worker taking the
+    next unit then mostly keeps the world it has set up (`sim.world.world_for` rebuilds the
+    twin only for another map)."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
     frames = sum(b - a for g in gaps.values() for a, b in g)
     length = segment_length(frames, workers, sensor_every)

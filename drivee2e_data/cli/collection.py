@@ -173,9 +173,11 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
             collect_runner.frames_to_collect(args.data, s, args.max_frames) or 0
             for s in scenario_ids
         )
-        sensor_every = topics.FRAME_RATE_HZ // args.sensor_hz
         host = collect_host.plan(
-            frames, renderer=args.renderer, gpus=len(gpus), sensor_every=sensor_every
+            frames,
+            renderer=args.renderer,
+            gpus=len(gpus),
+            sensor_every=topics.sensor_every(args.sensor_hz),
         )
         workers = host.workers if workers == "auto" else workers
         lidar = lidar or host.lidar

@@ -63,6 +63,14 @@ SENSOR_RATES_HZ = (10, 5, 2, 1)  # 10 Hz frames; sensors at every, 2nd, 5th or 1
 FRAME_RATE_HZ = 10
 
 
+def sensor_every(sensor_hz: int) -> int:
+    """Sensors at every n-th frame for sensors at `sensor_hz` (one of `SENSOR_RATES_HZ`)."""
+    if sensor_hz not in SENSOR_RATES_HZ:
+        rates = ", ".join(map(str, SENSOR_RATES_HZ))
+        raise ValueError(f"sensor_hz {sensor_hz}: expected one of {rates}")
+    return FRAME_RATE_HZ // sensor_hz
+
+
 def per_frame_topics(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
     """Every topic a log carries at every frame, given the cameras it records."""
     return (
