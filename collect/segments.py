@@ -1,8 +1,9 @@
 """Work units smaller than a clip: a clip's frames cut into segments that any worker takes, each
-written as a segment file of encoded frames, and the clip's log written from its segments once
-all are there. The log is byte for byte the one a single worker writes for the clip: the same
-`LogWriter` calls in the same order (`LogWriter.encode` / `write_encoded`), and a frame's
-capture depends on nothing but the frame (`SensorSuite.capture` poses the world from the log).
+written as a segment file of finished (compressed, indexed) MCAP chunks, and the clip's log
+written from its segments once all are there, a copy of their chunks. The log is byte for byte
+the one a single worker writes for the clip: the same chunks (`FrameEncoder.encode`) in the same
+order, and a frame's capture depends on nothing but the frame (`SensorSuite.capture` poses the
+world from the log).
 
 Segment files live in `logs/.segments/<scenario_id>/<start>-<stop>.segment`, written under a
 temporary name and renamed when whole, so a crash keeps every finished segment and a rerun
@@ -10,8 +11,8 @@ collects only the frames no segment holds. A segment records the options it was 
 made with other options is dropped.
 
 File layout: `MAGIC`, a length-prefixed JSON header (scenario, frames, options, the log's
-collection and label records), then per frame its number, time and records (topic, message
-type, bytes; a flush marker ends a chunk), then `END`.
+collection and label records), then per frame its number, time and chunks (each its length and
+bytes: a chunk record and its message indexes, as they go into the log), then `END`.
 """
 
 from __future__ import annotations
@@ -39,14 +40,15 @@ from drivee2e_data.collect.job import (
     run_job,
 )
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.logs.writer import FLUSH, EncodedFrame, FrameEncoder, LogWriter, Record
+from drivee2e_data.logs.chunks import read_chunk
+from drivee2e_data.logs.writer import EncodedFrame, FrameEncoder, LogWriter, label_kinds
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sensors.suite import configured_rig
 
 SEGMENTS_FOLDER = ".segments"
 SUFFIX = ".segment"
 TEMPORARY_SUFFIX = ".segment-tmp"
-MAGIC, END = b"DE2ESEG1", b"END!"
+MAGIC, END = b"DE2ESEG2", b"END!"  # 2: chunks; 1 (raw messages) is collected again
 # a unit's fixed cost is setting up its clip's world (0.4-1 s, docs/benchmarks.md) against
 # 0.1-0.5 s a sensor frame per worker: units with fewer sensor frames than this spend more
 # than a tenth on set-up. At `--sensor-hz 2` a frame without sensors costs next to nothing
@@ -56,8 +58,8 @@ MIN_SEGMENT_FRAMES = 25
 # enough that each worker sets up only a few worlds more than with whole clips
 UNITS_PER_WORKER = 4
 
-_FRAME = struct.Struct("<IqI")  # frame, t_ns, records
-_MESSAGE = struct.Struct("<BHHI")  # kind (1 message, 0 flush), topic, type, data lengths
+_FRAME = struct.Struct("<IqI")  # frame, t_ns, chunks
+_CHUNK = struct.Struct("<Q")  # a chunk's bytes
 
 
 @dataclass(frozen=True)
@@ -186,15 +188,10 @@ def remove_temporary(root: Path) -> None:
 
 
 def _write_frame(stream: BinaryIO, encoded: EncodedFrame) -> None:
-    stream.write(_FRAME.pack(encoded.frame, encoded.t_ns, len(encoded.records)))
-    for record in encoded.records:
-        if record is FLUSH:
-            stream.write(_MESSAGE.pack(0, 0, 0, 0))
-            continue
-        topic, kind, data = record
-        topic_bytes, kind_bytes = topic.encode(), kind.encode()
-        stream.write(_MESSAGE.pack(1, len(topic_bytes), len(kind_bytes), len(data)))
-        stream.write(topic_bytes + kind_bytes + data)
+    stream.write(_FRAME.pack(encoded.frame, encoded.t_ns, len(encoded.chunks)))
+    for chunk in encoded.chunks:
+        stream.write(_CHUNK.pack(len(chunk.data)))
+        stream.write(chunk.data)
 
 
 def _read_exactly(stream: BinaryIO, size: int, path: Path) -> bytes:
@@ -222,26 +219,20 @@ def read_header(path: Path) -> dict:
 
 
 def read_frames(path: Path) -> Iterator[EncodedFrame]:
-    """The encoded frames of a segment file, in order; the file must end with its trailer."""
+    """The encoded frames of a segment file, in order, their chunks read back from their bytes
+    (never inflated); the file must end with its trailer."""
     with open(path, "rb") as stream:
         if stream.read(len(MAGIC)) != MAGIC:
             raise DriveE2EError(f"{path}: not a drivee2e segment file")
         header = _read_json(stream, path)
         for _ in range(header["stop"] - header["start"]):
             frame, t_ns, count = _FRAME.unpack(_read_exactly(stream, _FRAME.size, path))
-            records: list[Record] = []
-            for _ in range(count):
-                kind, topic_size, type_size, data_size = _MESSAGE.unpack(
-                    _read_exactly(stream, _MESSAGE.size, path)
-                )
-                if kind == 0:
-                    records.append(FLUSH)
-                    continue
-                body = _read_exactly(stream, topic_size + type_size + data_size, path)
-                topic = body[:topic_size].decode()
-                message_type = body[topic_size : topic_size + type_size].decode()
-                records.append((topic, message_type, body[topic_size + type_size :]))
-            yield EncodedFrame(frame, t_ns, tuple(records))
+            chunks = []
+            for k in range(count):
+                (size,) = _CHUNK.unpack(_read_exactly(stream, _CHUNK.size, path))
+                data = _read_exactly(stream, size, path)
+                chunks.append(read_chunk(data, f"{path}: frame {frame}, chunk {k}"))
+            yield EncodedFrame(frame, t_ns, tuple(chunks))
         if stream.read(len(END)) != END:
             raise DriveE2EError(f"{path}: segment file has no end marker")
 
@@ -266,7 +257,11 @@ def collect_segment(
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
         encoder = FrameEncoder(
-            scenario, setup.world.intersection_map, setup.suite.rig, setup.suite.motion
+            scenario,
+            setup.world.intersection_map,
+            setup.suite.rig,
+            setup.suite.motion,
+            camera_label_kinds=label_kinds(setup.labels),
         )
         folder.mkdir(parents=True, exist_ok=True)
         final = folder / f"{unit.name}{SUFFIX}"

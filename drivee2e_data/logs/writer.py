@@ -1,6 +1,10 @@
 """Writes one clip's log: `<scenario_id>.mcap`, zstd chunks, the scenario meta and the rig as
 metadata records, every per-frame topic stamped with the frame's time.
 
+A frame is encoded into finished, compressed chunks (`FrameEncoder.encode`, `chunks.py`) that
+the log's file takes as they are (`container.py`), so a worker collecting a segment of a clip
+compresses its frames and writing the clip's log from its segments is a copy.
+
 The log is written under a temporary name in the same folder (`.<name>.<pid>.partial`) and
 renamed only when complete, so a file under the final name is always a whole log.
 """
@@ -13,48 +17,67 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from google.protobuf import descriptor_pool, message_factory
-from mcap.well_known import MessageEncoding
-from mcap.writer import CompressionType
-from mcap.writer import Writer as McapWriter
-from mcap_protobuf.schema import register_schema
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.LocationFix_pb2 import LocationFix
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 
 from drivee2e_data import __version__, store
 from drivee2e_data.binding import binding_signals, front_bumper
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.logs import messages, topics
+from drivee2e_data.logs import messages, schemas, topics
+from drivee2e_data.logs.chunks import ChannelTable, FinishedChunk, finish_chunk
+from drivee2e_data.logs.container import McapContainer
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion
 from drivee2e_data.sensors.rig import Rig
 from drivee2e_data.sensors.suite import SensorFrame, StateFrame
 
-CHUNK_BYTES = 4 * 1024 * 1024  # an upper bound: every frame ends its chunks (see `write`)
 PARTIAL_SUFFIX = ".partial"
-
-
-# one serialised message: (topic, protobuf full type name, bytes); FLUSH ends a chunk
-Record = tuple[str, str, bytes] | None
-FLUSH: Record = None
 
 
 @dataclass(frozen=True)
 class EncodedFrame:
-    """One frame's messages as `LogWriter.encode` makes them, ready to write."""
+    """One frame's finished chunks as `FrameEncoder.encode` makes them, ready to write."""
 
     frame: int
     t_ns: int
-    records: tuple[Record, ...]
+    chunks: tuple[FinishedChunk, ...]
 
 
-def serialised(topic: str, message: Any) -> Record:
-    """A message as a record: its topic, protobuf type name and bytes."""
-    return (topic, type(message).DESCRIPTOR.full_name, message.SerializeToString())
+def log_channels(rig: Rig, camera_label_kinds: tuple[str, ...] = ()) -> ChannelTable:
+    """Every topic a log of this rig carries, with its message class, in the order a frame
+    writes them (channel ids 1, 2, ... in this order, whatever frames a writer sees)."""
+    cameras = [c.name for c in rig.cameras]
+    return ChannelTable.of(
+        [
+            *((topics.image_topic(c), CompressedImage) for c in cameras),
+            *(
+                (topics.camera_label_topic(c, kind), CompressedImage)
+                for c in cameras
+                for kind in camera_label_kinds
+            ),
+            (topics.LIDAR, PointCloud),
+            *((topics.radar_topic(r.name), PointCloud) for r in rig.radars),
+            (topics.MAP, SceneUpdate),
+            *((topics.camera_info_topic(c), CameraCalibration) for c in cameras),
+            (topics.TF, FrameTransforms),
+            (topics.GNSS, LocationFix),
+            (topics.IMU, schemas.Imu),
+            (topics.EGO_STATE, schemas.EgoState),
+            (topics.OBJECTS, schemas.ObjectAnnotations),
+            (topics.SCENE, SceneUpdate),
+            (topics.TRAFFIC_LIGHTS, schemas.TrafficLights),
+            (topics.BEV, CompressedImage),
+        ]
+    )
 
 
-def message_class(full_name: str) -> type:
-    """The protobuf class of a message type the log writes (its module is imported here)."""
-    descriptor = descriptor_pool.Default().FindMessageTypeByName(full_name)
-    return message_factory.GetMessageClass(descriptor)
+def label_kinds(camera_labels: dict[str, str] | None) -> tuple[str, ...]:
+    """The dense label kinds a log's `drivee2e.camera_labels` record names (() for none)."""
+    return tuple(camera_labels["kinds"].split(",")) if camera_labels else ()
 
 
 def partial_path(final: Path) -> Path:
@@ -94,8 +117,8 @@ def rig_document(rig: Rig) -> dict[str, Any]:
 
 
 class FrameEncoder:
-    """Turns a clip's captured frames into their serialised messages (`encode`); holds what is
-    the same at every frame: the rig, the map's signal lanes, the ego's binding signals."""
+    """Turns a clip's captured frames into finished chunks (`encode`); holds what is the same at
+    every frame: the channels, the rig, the map's signal lanes, the ego's binding signals."""
 
     def __init__(
         self,
@@ -104,9 +127,12 @@ class FrameEncoder:
         rig: Rig,
         motion: EgoMotion,
         first_frame: int = 0,
+        camera_label_kinds: tuple[str, ...] = (),
     ) -> None:
         self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
         self.first_frame = first_frame
+        self.channels = log_channels(rig, camera_label_kinds)
+        self._channel_ids = {c.topic: c.id for c in self.channels.channels}
         self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
         # the signal binding the ego at each frame of the clip, from its logged pose and route
         route = scenario.route.lane_ids if scenario.route is not None else ()
@@ -121,10 +147,10 @@ class FrameEncoder:
         """A frame between sensor frames (`collect --sensor-hz`): the pose, GNSS, IMU, ego state
         and traffic lights, one chunk."""
         t = frame.t_ns
-        records: list[Record] = []
+        chunk: list[tuple[int, bytes]] = []
 
         def put(topic: str, message: Any) -> None:
-            records.append(serialised(topic, message))
+            chunk.append((self._channel_ids[topic], message.SerializeToString()))
 
         put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
         put(topics.GNSS, messages.location_fix(t, frame, self.motion))
@@ -134,12 +160,10 @@ class FrameEncoder:
             topics.TRAFFIC_LIGHTS,
             messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
         )
-        records.append(FLUSH)
-        return EncodedFrame(frame.frame, int(t), tuple(records))
+        return EncodedFrame(frame.frame, int(t), (finish_chunk(chunk, int(t)),))
 
     def encode(self, frame: SensorFrame | StateFrame) -> EncodedFrame:
-        """One frame's messages, serialised, in the order they are written, with the points
-        where a chunk ends (`FLUSH`).
+        """One frame's messages as finished chunks, in the order they are written.
 
         A frame is written as three chunks: the camera images, then the LiDAR and radar clouds,
         then everything else. A reader that wants one kind (a training loader reading images,
@@ -151,29 +175,32 @@ class FrameEncoder:
         if isinstance(frame, StateFrame):
             return self.encode_state(frame)
         t = frame.t_ns
-        records: list[Record] = []
+        chunks: list[list[tuple[int, bytes]]] = [[]]
 
         def put(topic: str, message: Any) -> None:
-            records.append(serialised(topic, message))
+            chunks[-1].append((self._channel_ids[topic], message.SerializeToString()))
+
+        def end_chunk() -> None:
+            chunks.append([])
 
         for camera in self.rig.cameras:
             put(
                 topics.image_topic(camera.name),
                 messages.compressed_image(t, camera.name, frame.jpeg[camera.name]),
             )
-        records.append(FLUSH)
+        end_chunk()
         if frame.camera_labels:  # a chunk of their own: the loader's image reads skip them
             for camera, images in frame.camera_labels.items():
                 for kind, png in images.items():
                     put(topics.camera_label_topic(camera, kind), messages.png_image(t, camera, png))
-            records.append(FLUSH)
+            end_chunk()
         put(topics.LIDAR, messages.lidar_cloud(t, self.rig.lidar.name, frame.lidar))
         for radar in self.rig.radars:
             put(
                 topics.radar_topic(radar.name),
                 messages.radar_cloud(t, radar.name, frame.radars[radar.name]),
             )
-        records.append(FLUSH)
+        end_chunk()
         if frame.frame == self.first_frame:
             put(topics.MAP, messages.map_scene(t, self.intersection_map))
         for camera in self.rig.cameras:
@@ -189,8 +216,7 @@ class FrameEncoder:
             messages.traffic_lights(t, frame, self.signal_lanes, self.binding[frame.frame]),
         )
         put(topics.BEV, messages.compressed_image(t, topics.EGO_FRAME, frame.bev_jpeg))
-        records.append(FLUSH)
-        return EncodedFrame(frame.frame, int(t), tuple(records))
+        return EncodedFrame(frame.frame, int(t), tuple(finish_chunk(c, int(t)) for c in chunks))
 
 
 class LogWriter:
@@ -210,25 +236,24 @@ class LogWriter:
     ) -> None:
         self.path, self.partial = path, partial_path(path)
         self.sensor_every = sensor_every  # sensors at every n-th frame (`collect --sensor-hz`)
-        self.encoder = FrameEncoder(scenario, intersection_map, rig, motion, first_frame)
+        self.encoder = FrameEncoder(
+            scenario, intersection_map, rig, motion, first_frame, label_kinds(camera_labels)
+        )
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial, "wb")
-        self._writer = McapWriter(
-            self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD
+        self._container = McapContainer(
+            self._file, self.encoder.channels, f"drivee2e-data {__version__}"
         )
-        self._writer.start(profile="", library=f"drivee2e-data {__version__}")
-        self._channels: dict[str, int] = {}  # topic -> channel id
-        self._schemas: dict[str, int] = {}  # message type -> schema id
-        self._writer.add_metadata(
+        self._container.add_metadata(
             topics.SCENARIO_METADATA,
             {"meta": json.dumps(store.meta_document(scenario), sort_keys=True)},
         )
-        self._writer.add_metadata(topics.RIG_METADATA, {"rig": json.dumps(rig_document(rig))})
-        self._writer.add_metadata(
+        self._container.add_metadata(topics.RIG_METADATA, {"rig": json.dumps(rig_document(rig))})
+        self._container.add_metadata(
             topics.COLLECTION_METADATA, {"drivee2e_version": __version__, **collection}
         )
         if camera_labels:
-            self._writer.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
+            self._container.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
         self.t_ns: list[int] = []  # of the frames written
         self.first_frame = first_frame
 
@@ -237,39 +262,21 @@ class LogWriter:
         self.write_encoded(self.encoder.encode(frame))
 
     def write_encoded(self, encoded: EncodedFrame) -> None:
-        """Write a frame `encode` made (here or in another process); frames in order."""
+        """Write a frame `encode` made (here or in another process, with the same channels);
+        frames in order."""
         expected = self.first_frame + len(self.t_ns)
         if encoded.frame != expected:
             raise ValueError(
                 f"{self.path}: frame {encoded.frame} written where frame {expected} was due"
             )
-        t = encoded.t_ns
-        for record in encoded.records:
-            if record is FLUSH:
-                self._writer.flush()
-                continue
-            topic, kind, data = record
-            self._writer.add_message(
-                self._channel(topic, kind), log_time=t, data=data, publish_time=t
-            )
-        self.t_ns.append(t)
-
-    def _channel(self, topic: str, kind: str) -> int:
-        """The topic's channel, registered with its message type's schema on first use."""
-        if topic not in self._channels:
-            if kind not in self._schemas:
-                self._schemas[kind] = register_schema(self._writer, message_class(kind))
-            self._channels[topic] = self._writer.register_channel(
-                topic=topic,
-                message_encoding=MessageEncoding.Protobuf,
-                schema_id=self._schemas[kind],
-            )
-        return self._channels[topic]
+        for chunk in encoded.chunks:
+            self._container.add_chunk(chunk)
+        self.t_ns.append(encoded.t_ns)
 
     def finish(self) -> None:
         """The frame list, index and footer, flushed to disk, then the rename that makes the
         log final."""
-        self._writer.add_metadata(
+        self._container.add_metadata(
             topics.FRAMES_METADATA,
             {
                 "first_frame": str(self.first_frame),
@@ -278,7 +285,7 @@ class LogWriter:
                 "t_ns": json.dumps(self.t_ns),
             },
         )
-        self._writer.finish()
+        self._container.finish()
         self._file.flush()
         os.fsync(self._file.fileno())
         self._file.close()
