@@ -16,7 +16,7 @@ import queue
 import signal
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -37,7 +37,7 @@ from drivee2e_data.collect.job import (
     planned_frames,
     remove_world_files,
 )
-from drivee2e_data.collect.segments import WorkUnit
+from drivee2e_data.collect.segments import Job, WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
@@ -46,6 +46,9 @@ from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sim import egl_devices
 
 BACKENDS = ("local", "ray")
+# threads writing clips' logs from their segments beside the pool: a log is a copy of its
+# segments' chunks (0.1-0.3 s a clip), so two keep up with any number of workers
+MERGE_THREADS = 2
 INDEX_NAME = "index.parquet"
 
 
@@ -115,8 +118,8 @@ def frames_to_collect(root: Path, scenario_id: str, max_frames: int | None) -> i
 
 def _plan(
     root: Path, scenario_ids: list[str], options: CollectOptions, workers: int
-) -> tuple[list[WorkUnit], dict[str, int]]:
-    """The units of work for these clips (see `segments.plan_units`), and each clip's frames.
+) -> tuple[list[Job], dict[str, int]]:
+    """The jobs for these clips (see `segments.plan_jobs`), and each clip's frames.
     Segment files a crashed run finished are kept and only the frames they lack are planned;
     a clip whose bundle cannot be read gets one whole unit, whose job reports why."""
     segments.remove_temporary(root)
@@ -136,8 +139,8 @@ def _plan(
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept
-    units = segments.plan_units(clip_frames, covered, workers, maps, options.sensor_every)
-    return [*units, *unreadable], clip_frames
+    jobs = segments.plan_jobs(clip_frames, covered, workers, maps, options.sensor_every)
+    return [*jobs, *((unit,) for unit in unreadable)], clip_frames
 
 
 def run_unit(
@@ -199,11 +202,11 @@ class _ClipTracker:
         self.merged(scenario_id, segments.merge_clip(self.root, scenario_id, self.options, frames))
 
     def merged(self, scenario_id: str, result: JobResult) -> None:
-        """Count in the result of writing the clip's log (`segments.merge_clip`)."""
+        """Count in the result of writing the clip's log (`segments.merge_clip`): its time in the
+        write stage, but not in the clip's seconds or spans, which are the workers' (the log is
+        written by this process, beside them)."""
         clip = self.clips[scenario_id]
         clip.stage_seconds["write"] = clip.stage_seconds.get("write", 0.0) + result.seconds
-        clip.seconds += result.seconds
-        clip.spans.extend(result.spans)
         clip.log_bytes = result.log_bytes
         if result.status == "failed":
             clip.status, clip.error = "failed", result.error
@@ -269,14 +272,15 @@ def collect(
                 pending.append(scenario_id)
         if backend == "ray" and pending:  # units for every CPU of the cluster
             workers = max(workers, _start_ray())
-        units, clip_frames = _plan(root, pending, options, workers)
+        jobs, clip_frames = _plan(root, pending, options, workers)
+        units = [unit for job in jobs for unit in job]
         total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
         tracker = _ClipTracker(root, options, units, clip_frames)
         try:
             if backend == "ray":
-                _run_ray(root, units, options, tracker, tick, gpus)
-            elif workers <= 1 or not units:
+                _run_ray(root, jobs, options, tracker, tick, gpus)
+            elif workers <= 1 or not jobs:
                 for scenario_id in tracker.ready:
                     tracker.merge(scenario_id)
                 for unit in units:
@@ -284,8 +288,8 @@ def collect(
                     if merge is not None:
                         tracker.merge(merge)
             else:
-                workers = min(workers, len(units))  # no idle workers
-                _run_pool(root, units, options, workers, tracker, tick, gpus)
+                workers = min(workers, len(jobs))  # no idle workers
+                _run_pool(root, jobs, options, workers, tracker, tick, gpus)
             summary.results.extend(tracker.results())
         except KeyboardInterrupt:
             for partial in logs.glob(f".*{PARTIAL_SUFFIX}"):
@@ -336,59 +340,66 @@ def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[i
     clean_up_when_stopped(remove_world_files)
 
 
-def _pooled_unit(root: Path, unit: WorkUnit, options: CollectOptions) -> JobResult:
+def _pooled_job(root: Path, job: Job, options: CollectOptions) -> list[JobResult]:
+    """A job's units in order, in a pool worker; a failed unit does not stop the next."""
     frames_done = _frames_done
-    return run_unit(root, unit, options, frames_done.put if frames_done else None)
+    return [run_unit(root, unit, options, frames_done.put if frames_done else None) for unit in job]
 
 
 def _run_pool(
     root: Path,
-    units: list[WorkUnit],
+    jobs: list[Job],
     options: CollectOptions,
     workers: int,
     tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
 ) -> None:
-    """Units on a pool of worker processes, longest first. Jobs are handed out as workers free
-    up, one queued ahead for each worker (with one for all, workers finishing together waited
-    on the parent's turn to hand out the next: 0.8-1.5 s a worker on an H100 host, where the
-    parent shares the cores with sixteen workers), and a clip whose segments are all done has
-    its log written next, ahead of the units still waiting: the logs get written while the
-    collection goes on, by many processes, instead of piling up at the end."""
+    """Jobs on a pool of worker processes, longest first, handed out as workers free up (one
+    queued ahead for each). A clip whose segments are all done has its log written at once by
+    a thread of this process: writing a log from segments is a copy of their chunks, so it
+    takes no worker and the logs get written while the collection goes on."""
     frames_done = SPAWN.Queue()
     started = SPAWN.Value("i", 0)
-    with worker_pool(workers, _init_worker, (frames_done, started, gpus)) as pool:
-        waiting = collections.deque(units)
-        merges: collections.deque[str] = collections.deque(tracker.ready)
-        running: dict[Future, WorkUnit | str] = {}  # a unit, or the clip whose log is being written
+    with (
+        worker_pool(workers, _init_worker, (frames_done, started, gpus)) as pool,
+        ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
+    ):
+        waiting = collections.deque(jobs)
+        running: dict[Future, Job | str] = {}  # a job, or the clip whose log is being written
+
+        def merge(scenario_id: str) -> None:
+            frames = tracker.clip_frames[scenario_id]
+            running[writers.submit(segments.merge_clip, root, scenario_id, options, frames)] = (
+                scenario_id
+            )
 
         def hand_out() -> None:
-            while len(running) < 2 * workers and (merges or waiting):
-                if merges:
-                    clip = merges.popleft()
-                    frames = tracker.clip_frames[clip]
-                    job = pool.submit(segments.merge_clip, root, clip, options, frames)
-                    running[job] = clip
-                else:
-                    unit = waiting.popleft()
-                    running[pool.submit(_pooled_unit, root, unit, options)] = unit
+            while waiting and sum(not isinstance(j, str) for j in running.values()) < 2 * workers:
+                job = waiting.popleft()
+                running[pool.submit(_pooled_job, root, job, options)] = job
 
+        for scenario_id in tracker.ready:
+            merge(scenario_id)
         hand_out()
         while running:
             done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
             for future in done:
                 job = running.pop(future)
-                scenario_id = job if isinstance(job, str) else job.scenario_id
-                try:
-                    result = future.result()
-                except BrokenProcessPool:
-                    result = JobResult(scenario_id, "failed", error="the worker process died")
                 if isinstance(job, str):
-                    tracker.merged(job, result)
-                elif (clip := tracker.finished(job, result)) is not None:
-                    merges.append(clip)
+                    tracker.merged(job, future.result())  # merge_clip never raises
+                    continue
+                try:
+                    results = future.result()
+                except BrokenProcessPool:
+                    results = [
+                        JobResult(unit.scenario_id, "failed", error="the worker process died")
+                        for unit in job
+                    ]
+                for unit, result in zip(job, results, strict=True):
+                    if (clip := tracker.finished(unit, result)) is not None:
+                        merge(clip)
             hand_out()
         _drain(frames_done, tick)
 
@@ -406,7 +417,7 @@ def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | Non
 
 def _run_ray(
     root: Path,
-    units: list[WorkUnit],
+    jobs: list[Job],
     options: CollectOptions,
     tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
@@ -414,14 +425,12 @@ def _run_ray(
 ) -> None:
     for scenario_id in tracker.ready:  # logs a stopped run left unwritten: written here
         tracker.merge(scenario_id)
-    if not units:
+    if not jobs:
         return
     import ray
 
-    remote_unit = ray.remote(num_cpus=1)(_ray_unit).options(
-        runtime_env={"env_vars": WORKER_THREADS}
-    )
-    pending = {remote_unit.remote(root, u, options, gpus): u for u in units}
+    remote_job = ray.remote(num_cpus=1)(_ray_job).options(runtime_env={"env_vars": WORKER_THREADS})
+    pending = {remote_job.remote(root, job, options, gpus): job for job in jobs}
     try:
         _gather_ray(ray, pending, tracker, tick)
     except KeyboardInterrupt:
@@ -441,22 +450,26 @@ def _start_ray() -> int:
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
 
-def _ray_unit(
-    root: Path, unit: WorkUnit, options: CollectOptions, gpus: tuple[int, ...]
-) -> JobResult:
-    """A unit in a Ray worker process: its GL context on a GPU chosen by the process id (Ray
-    numbers no workers; the context is made once, at the process's first render)."""
+def _ray_job(
+    root: Path, job: Job, options: CollectOptions, gpus: tuple[int, ...]
+) -> list[JobResult]:
+    """A job's units in a Ray worker process: its GL context on a GPU chosen by the process id
+    (Ray numbers no workers; the context is made once, at the process's first render)."""
     import ray
 
     egl_devices.use_device(egl_devices.device_for_worker(os.getpid(), gpus))
-    result = run_unit(root, unit, options)
-    result.node_frames = {ray.get_runtime_context().get_node_id(): result.frames}
-    return result
+    node = ray.get_runtime_context().get_node_id()
+    results = []
+    for unit in job:
+        result = run_unit(root, unit, options)
+        result.node_frames = {node: result.frames}
+        results.append(result)
+    return results
 
 
 def _gather_ray(
     ray: Any,
-    pending: dict[Any, WorkUnit],
+    pending: dict[Any, Job],
     tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
 ) -> None:
@@ -465,16 +478,20 @@ def _gather_ray(
     while pending:
         done, _ = ray.wait(list(pending), num_returns=1)
         for reference in done:
-            unit = pending.pop(reference)
+            job = pending.pop(reference)
             try:
-                result = ray.get(reference)
+                results = ray.get(reference)
             except Exception as error:  # a task lost with its node
-                result = JobResult(unit.scenario_id, "failed", error=f"Ray task failed: {error}")
-            if tick is not None:
-                tick(result.frames)
-            merge = tracker.finished(unit, result)
-            if merge is not None:
-                tracker.merge(merge)
+                results = [
+                    JobResult(u.scenario_id, "failed", error=f"Ray task failed: {error}")
+                    for u in job
+                ]
+            for unit, result in zip(job, results, strict=True):
+                if tick is not None:
+                    tick(result.frames)
+                merge = tracker.finished(unit, result)
+                if merge is not None:
+                    tracker.merge(merge)
 
 
 def write_index(root: Path) -> int:

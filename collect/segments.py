@@ -1,9 +1,10 @@
-"""Work units smaller than a clip: a clip's frames cut into segments that any worker takes, each
-written as a segment file of finished (compressed, indexed) MCAP chunks, and the clip's log
-written from its segments once all are there, a copy of their chunks. The log is byte for byte
-the one a single worker writes for the clip: the same chunks (`FrameEncoder.encode`) in the same
-order, and a frame's capture depends on nothing but the frame (`SensorSuite.capture` poses the
-world from the log).
+"""Work smaller than a set of clips: the set's frames laid end to end and cut into one equal job
+per worker (`plan_jobs`), so a job is a run of pieces of clips. A piece that is not a whole clip
+is a segment, written as a segment file of finished (compressed, indexed) MCAP chunks, and the
+clip's log is written from its segments once all are there, a copy of their chunks. The log is
+byte for byte the one a single worker writes for the clip: the same chunks
+(`FrameEncoder.encode`) in the same order, and a frame's capture depends on nothing but the
+frame (`SensorSuite.capture` poses the world from the log).
 
 Segment files live in `logs/.segments/<scenario_id>/<start>-<stop>.segment`, written under a
 temporary name and renamed when whole, so a crash keeps every finished segment and a rerun
@@ -18,7 +19,6 @@ bytes: a chunk record and its message indexes, as they go into the log), then `E
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import math
 import os
@@ -49,14 +49,13 @@ SEGMENTS_FOLDER = ".segments"
 SUFFIX = ".segment"
 TEMPORARY_SUFFIX = ".segment-tmp"
 MAGIC, END = b"DE2ESEG2", b"END!"  # 2: chunks; 1 (raw messages) is collected again
-# a unit's fixed cost is setting up its clip's world (0.4-1 s, docs/benchmarks.md) against
-# 0.1-0.5 s a sensor frame per worker: units with fewer sensor frames than this spend more
-# than a tenth on set-up. At `--sensor-hz 2` a frame without sensors costs next to nothing
-# (the ego, boxes and traffic only: a few ms), so a unit needs five times the frames
+# a unit's fixed cost is setting up its clip's world (0.4-1 s here, 1.9 s on a loaded H100
+# host, docs/benchmarks.md) against 0.1-0.5 s a sensor frame per worker: no worker's share of a
+# set is made shorter than this many sensor frames (at `--sensor-hz 2`, five times the frames)
 MIN_SEGMENT_FRAMES = 25
-# units per worker when a set is cut: enough that the last units to finish are short, few
-# enough that each worker sets up only a few worlds more than with whole clips
-UNITS_PER_WORKER = 4
+# a cut within this many sensor frames of a clip's end moves to that end: a piece so short
+# would cost a world's set-up for a second or less of work
+MIN_PIECE_SENSOR_FRAMES = 5
 
 _FRAME = struct.Struct("<IqI")  # frame, t_ns, chunks
 _CHUNK = struct.Struct("<Q")  # a chunk's bytes
@@ -81,54 +80,108 @@ class WorkUnit:
         return f"{self.start:06d}-{self.stop:06d}"
 
 
+Job = tuple[WorkUnit, ...]  # units one worker runs in order
+
+
 def shortest_unit(sensor_every: int = 1) -> int:
-    """The fewest frames a unit holds with sensors at every `sensor_every`-th frame:
-    `MIN_SEGMENT_FRAMES` sensor frames."""
+    """The fewest frames a worker's share holds with sensors at every `sensor_every`-th
+    frame: `MIN_SEGMENT_FRAMES` sensor frames."""
     return MIN_SEGMENT_FRAMES * sensor_every
 
 
-def segment_length(total_frames: int, workers: int, sensor_every: int = 1) -> int | None:
-    """Frames per unit for `total_frames` over `workers` (None: no cutting, whole clips), with
-    sensors at every `sensor_every`-th frame (at least `shortest_unit`)."""
-    if workers <= 1:
-        return None
-    per_unit = math.ceil(total_frames / (workers * UNITS_PER_WORKER))
-    return max(shortest_unit(sensor_every), per_unit)
-
-
-def plan_units(
+def plan_jobs(
     clip_frames: dict[str, int],
     covered: dict[str, list[tuple[int, int]]],
     workers: int,
     maps: dict[str, str] | None = None,
     sensor_every: int = 1,
-) -> list[WorkUnit]:
+) -> list[Job]:
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
-    frame ranges in `covered` are already in segment files: every frame not covered, cut into
-    units of about `segment_length` frames (sensors at every `sensor_every`-th), longest
-    first. Within a length, units of clips on one map (`maps`: scenario id -> map id) follow
-    each other, in the order the maps first appear, then the clips' order: a worker taking the
-    next unit then mostly keeps the world it has set up (`sim.world.world_for` rebuilds the
-    twin only for another map)."""
+    frame ranges in `covered` are already in segment files, as one job per worker.
+
+    Every frame not covered is laid end to end, clips on one map next to each other (in the
+    order the maps first appear, then the clips' order: a worker going on to the next clip
+    of its map keeps its twin, `sim.world.world_for`), and cut into `workers` runs of equal
+    length (no more runs than `shortest_unit`s in the frames). A job is its run's
+    pieces of clips, in order; cuts fall on sensor frames, and a cut within
+    `MIN_PIECE_SENSOR_FRAMES` sensor frames of a clip's end moves to that end. Jobs come
+    longest first.
+
+    One job per worker rather than many small units handed out as workers free up: each unit
+    costs a world's set-up and a wait for the next, and with a few units a worker the last
+    ones leave workers idle (at `--sensor-hz 2` the pool's wall time was 1.29x its even share,
+    docs/benchmarks.md). With one worker each clip is its own job, whole clips written
+    straight into their logs."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
-    frames = sum(b - a for g in gaps.values() for a, b in g)
-    length = segment_length(frames, workers, sensor_every)
-    units = []
-    for scenario_id, ranges in gaps.items():
-        whole = ranges == [(0, clip_frames[scenario_id])]
-        for start, stop in ranges:
-            pieces = 1 if length is None else math.ceil((stop - start) / length)
-            if whole and pieces == 1:
-                units.append(WorkUnit(scenario_id, start, stop, whole=True))
-                continue
-            bounds = [start + round(k * (stop - start) / pieces) for k in range(pieces + 1)]
-            units.extend(WorkUnit(scenario_id, a, b) for a, b in itertools.pairwise(bounds))
     maps = maps or {}
     rank: dict[str, int] = {}
     for scenario_id in clip_frames:
         rank.setdefault(maps.get(scenario_id, scenario_id), len(rank))
-    # stable: clip order kept within a length and a map
-    return sorted(units, key=lambda u: (-u.frames, rank[maps.get(u.scenario_id, u.scenario_id)]))
+    order = sorted(clip_frames, key=lambda s: rank[maps.get(s, s)])  # stable: clip order kept
+    pieces = [(s, a, b) for s in order for a, b in gaps[s]]
+    total = sum(b - a for _, a, b in pieces)
+    count = max(1, min(workers, math.ceil(total / shortest_unit(sensor_every))))
+    if count == 1 and workers <= 1:
+        return [
+            (WorkUnit(s, a, b, whole=gaps[s] == [(0, clip_frames[s])]),)
+            for s, a, b in sorted(pieces, key=lambda p: p[1] - p[2])  # longest first
+        ]
+    cuts = _snapped_cuts(pieces, count, sensor_every)
+    jobs: list[list[WorkUnit]] = [[]]
+    offset = 0  # frames laid down before this piece
+    for scenario_id, start, stop in pieces:
+        position = start
+        while cuts and cuts[0] < offset + stop - start:
+            at = start + cuts.pop(0) - offset
+            if at > position:
+                jobs[-1].append(WorkUnit(scenario_id, position, at))
+                position = at
+            jobs.append([])
+        if position < stop:
+            jobs[-1].append(WorkUnit(scenario_id, position, stop))
+        offset += stop - start
+        if cuts and cuts[0] == offset:  # a cut between pieces
+            cuts.pop(0)
+            jobs.append([])
+    parts: dict[str, int] = {}
+    for unit in (u for job in jobs for u in job):
+        parts[unit.scenario_id] = parts.get(unit.scenario_id, 0) + 1
+    planned = [
+        tuple(
+            dataclasses.replace(
+                u,
+                whole=parts[u.scenario_id] == 1
+                and gaps[u.scenario_id] == [(0, clip_frames[u.scenario_id])],
+            )
+            for u in job
+        )
+        for job in jobs
+        if job
+    ]
+    return sorted(planned, key=lambda job: -sum(u.frames for u in job))  # stable
+
+
+def _snapped_cuts(pieces: list[tuple[str, int, int]], count: int, sensor_every: int) -> list[int]:
+    """Where `pieces` (scenario id, start, stop) laid end to end are cut into `count` runs of
+    equal length: positions in frames from the first piece's start, each on a sensor frame and
+    moved to its piece's end when within `MIN_PIECE_SENSOR_FRAMES` sensor frames of it."""
+    total = sum(b - a for _, a, b in pieces)
+    snap = MIN_PIECE_SENSOR_FRAMES * sensor_every
+    cuts, offset, targets = set(), 0, [round(k * total / count) for k in range(1, count)]
+    for _, start, stop in pieces:
+        for target in targets:
+            if not offset <= target < offset + stop - start:
+                continue
+            at = min(
+                stop, max(start, round((start + target - offset) / sensor_every) * sensor_every)
+            )
+            if at - start < snap:
+                at = start
+            elif stop - at < snap:
+                at = stop
+            cuts.add(offset + at - start)
+        offset += stop - start
+    return sorted(cuts - {0, total})
 
 
 def uncovered(frames: int, ranges: list[tuple[int, int]]) -> list[tuple[int, int]]:

@@ -298,7 +298,7 @@ def mix(args: argparse.Namespace) -> None:
 
 def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
     """Each worker's share of the wall time, averaged over workers: `start` before its first job,
-    `jobs` (units and logs written from segments), `gaps` between its jobs, `tail` after its last
+    `jobs` (its units; logs are written from segments by the parent), `gaps` between its jobs, `tail` after its last
     job until the last job of the run ended, and `end` (the index and the rest) after that."""
     per_worker: dict[int, list[tuple[float, float]]] = {}
     for result in summary.results:
@@ -321,8 +321,7 @@ def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
 
 
 def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None:
-    """Every job on its worker's row, coloured by its clip's weather; logs written from
-    segments hatched."""
+    """Every unit on its worker's row, coloured by its clip's weather."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -334,12 +333,11 @@ def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None
     figure, axes = plt.subplots(figsize=(11, 0.3 * 16 + 1.5))
     for result in summary.results:
         weather = conditions[result.scenario_id].weather.value
-        for k, (began, ended, pid) in enumerate(sorted(result.spans)):
+        for began, ended, pid in sorted(result.spans):
             row = rows.setdefault(pid, len(rows))
-            merge = k == len(result.spans) - 1 and len(result.spans) > 1
             axes.barh(row, ended - began, left=began - summary.started, height=0.8,
-                      color=colours.get(weather, "#888888"), edgecolor="black", linewidth=0.3,
-                      hatch="///" if merge else None)  # fmt: skip
+                      color=colours.get(weather, "#888888"), edgecolor="black",
+                      linewidth=0.3)  # fmt: skip
     axes.axvline(summary.wall_seconds, color="red", linewidth=1)
     axes.set_xlim(0, 1.02 * summary.wall_seconds)
     axes.set_xlabel("seconds since the run began (red: the run's end, after the index)")

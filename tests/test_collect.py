@@ -232,26 +232,31 @@ def test_a_pool_of_workers_writes_the_same_payloads(
 def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     synthetic_root: Path, tmp_path: Path
 ):
-    """Four 60-frame clips on two workers are cut into 30-frame segments; Ctrl-C while both
-    workers write one leaves neither unfinished segment file nor any partial log, nor the
+    """Three 60-frame clips on two workers: the first clip whole and half the second for one,
+    the second's other half and the third whole for the other. Ctrl-C while one writes a log
+    and the other a segment leaves neither partial log nor unfinished segment file, nor the
     workers' twin meshes in the temp folder."""
-    ids = store.scenario_ids(synthetic_root)[6:10]
+    ids = store.scenario_ids(synthetic_root)[6:9]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
     temporary = tmp_path / "tmp"
     temporary.mkdir()
     process = _start_collector(root, ["--workers", "2", "--max-frames", "60"], temporary)
     logs = root / "logs"
     unfinished = ".segments/*/*.segment-tmp"
-    _wait_until(lambda: len(list(logs.glob(unfinished))) == 2, process)
+    partial = ".*.partial"
+    _wait_until(
+        lambda: len(list(logs.glob(unfinished))) == 1 and len(list(logs.glob(partial))) == 1,
+        process,
+    )
     os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     try:
-        _, err = process.communicate(timeout=30)  # not after the four queued clips
+        _, err = process.communicate(timeout=30)  # not after the clips still to do
     finally:
         if process.poll() is None:
             os.killpg(process.pid, signal.SIGKILL)
     assert process.returncode == 130
     assert "interrupted" in err.decode() and "rerun to resume" in err.decode()
-    assert not list(logs.glob(".*.partial")) and not list(logs.glob(unfinished))
+    assert not list(logs.glob(partial)) and not list(logs.glob(unfinished))
     assert len(list(logs.glob("*.mcap"))) < len(ids)
     assert not list(temporary.glob("drivee2e_twin_*"))
 

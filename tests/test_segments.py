@@ -16,7 +16,7 @@ from drivee2e_data.cli import main
 from drivee2e_data.collect import host, segments
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import collect
-from drivee2e_data.collect.segments import WorkUnit, plan_units, segment_length, uncovered
+from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
 
@@ -30,60 +30,74 @@ def _cli_options() -> CollectOptions:
     return dataclasses.replace(SMALL, lidar=plan(frames=LONG_CLIP_FRAMES).lidar)
 
 
-def test_a_set_is_cut_into_units_longest_first():
-    units = plan_units({"a": 100, "b": 30}, {}, workers=2)
-    # 130 frames over 2 workers x 4 units: 17 frames a unit, raised to the 25-frame minimum
-    assert [(u.scenario_id, u.start, u.stop) for u in units] == [
-        ("a", 0, 25), ("a", 25, 50), ("a", 50, 75), ("a", 75, 100), ("b", 0, 15), ("b", 15, 30),
-    ]  # fmt: skip
-    assert not any(u.whole for u in units)
-    # one worker: whole clips, written straight into their logs
-    assert plan_units({"a": 100, "b": 30}, {}, workers=1) == [
-        WorkUnit("a", 0, 100, whole=True),
-        WorkUnit("b", 0, 30, whole=True),
+def _spans(jobs: list[tuple[WorkUnit, ...]]) -> list[list[tuple[str, int, int, bool]]]:
+    return [[(u.scenario_id, u.start, u.stop, u.whole) for u in job] for job in jobs]
+
+
+def test_a_set_is_cut_into_one_equal_job_per_worker_longest_first():
+    # 130 frames on 2 workers: the clips laid end to end and cut at frame 65
+    assert _spans(plan_jobs({"a": 100, "b": 30}, {}, workers=2)) == [
+        [("a", 0, 65, False)],
+        [("a", 65, 100, False), ("b", 0, 30, True)],
     ]
-    # 16 workers on 1600 frames: 25 frames a unit, 64 units
-    many = plan_units({f"c{k}": 100 for k in range(16)}, {}, workers=16)
-    assert len(many) == 64 and {u.frames for u in many} == {25}
+    # one worker: whole clips, longest first, written straight into their logs
+    assert plan_jobs({"b": 30, "a": 100}, {}, workers=1) == [
+        (WorkUnit("a", 0, 100, whole=True),),
+        (WorkUnit("b", 0, 30, whole=True),),
+    ]
+    # 16 workers on 16 clips of 100 frames: the cuts fall between clips
+    many = plan_jobs({f"c{k}": 100 for k in range(16)}, {}, workers=16)
+    assert _spans(many) == [[(f"c{k}", 0, 100, True)] for k in range(16)]
+    # no more jobs than 25-frame shares: 60 frames make 3 jobs, not 16
+    assert [u.frames for (u,) in plan_jobs({"a": 60}, {}, workers=16)] == [20, 20, 20]
 
 
-def test_keyframe_rate_units_hold_as_many_sensor_frames():
-    """At 2 Hz a unit needs five times the frames for its 25 sensor frames: 16 workers on
-    16 clips of 200 frames make 32 units of 100 frames (64 of 50 at 10 Hz), so fewer worlds are
-    set up for the same sensor work."""
-    clips = {f"c{k}": 200 for k in range(16)}
-    at_10_hz = plan_units(clips, {}, workers=16)
-    assert len(at_10_hz) == 64 and {u.frames for u in at_10_hz} == {50}
-    at_2_hz = plan_units(clips, {}, workers=16, sensor_every=5)
-    assert len(at_2_hz) == 32 and {u.frames for u in at_2_hz} == {100}
-    assert segment_length(3200, 16, sensor_every=5) == 125
-    assert segment_length(3200, 16) == 50 and segment_length(3200, 1, sensor_every=5) is None
-    # the host plan counts units the same way: no more workers than units
+def test_cuts_fall_on_sensor_frames_and_never_leave_a_sliver():
+    # 2 Hz: the cut at frame 202 of 403 moves to the keyframe at 200 (the longer job first)
+    assert _spans(plan_jobs({"a": 303, "b": 100}, {}, workers=2, sensor_every=5)) == [
+        [("a", 200, 303, False), ("b", 0, 100, True)],
+        [("a", 0, 200, False)],
+    ]
+    # 10 Hz: a cut 1 frame before a clip's end moves to that end (no world set up for 1 frame)
+    assert _spans(plan_jobs({"a": 103, "b": 100}, {}, workers=2)) == [
+        [("a", 0, 103, True)],
+        [("b", 0, 100, True)],
+    ]
+    # at 2 Hz a share is 25 sensor frames: 200 frames are two jobs for 16 workers
+    assert _spans(plan_jobs({"a": 200}, {}, workers=16, sensor_every=5)) == [
+        [("a", 0, 100, False)],
+        [("a", 100, 200, False)],
+    ]
+    # the host plan counts the same way: no more workers than 25-sensor-frame shares
     assert host.plan(3200, cores=64, memory=512.0, gpu=False, renderer="tiny").workers == 64
     sparse = host.plan(3200, cores=64, memory=512.0, gpu=False, renderer="tiny", sensor_every=5)
     assert sparse.workers == 3200 // 125
 
 
-def test_units_of_one_length_are_grouped_by_map():
-    """Clips alternate between two maps; within a length their units go map by map (a worker
-    taking the next unit keeps its twin), longest still first."""
+def test_clips_of_one_map_are_laid_next_to_each_other():
+    """Clips alternate between two maps; laid map by map, a worker going on to its next clip
+    keeps its twin."""
     frames = {"a": 30, "b": 30, "c": 30, "d": 30, "e": 60}
     maps = {"a": "m0", "b": "m1", "c": "m0", "d": "m1", "e": "m1"}
-    units = plan_units(frames, {}, workers=1, maps=maps)
-    assert [u.scenario_id for u in units] == ["e", "a", "c", "b", "d"]
-    assert [u.scenario_id for u in plan_units(frames, {}, workers=1)] == ["e", "a", "b", "c", "d"]
+    assert _spans(plan_jobs(frames, {}, workers=2, maps=maps)) == [
+        [("a", 0, 30, True), ("c", 0, 30, True), ("b", 0, 30, True)],
+        [("d", 0, 30, True), ("e", 0, 60, True)],
+    ]
+    one = plan_jobs(frames, {}, workers=1, maps=maps)
+    assert [u.scenario_id for (u,) in one] == ["e", "a", "c", "b", "d"]
 
 
 def test_a_rerun_plans_only_the_frames_no_segment_holds():
     assert uncovered(100, [(50, 75), (0, 25)]) == [(25, 50), (75, 100)]
     assert uncovered(30, [(0, 30)]) == []
     assert uncovered(30, []) == [(0, 30)]
-    units = plan_units({"a": 100, "b": 30}, {"a": [(0, 25), (50, 75)]}, workers=2)
-    assert [(u.scenario_id, u.start, u.stop, u.whole) for u in units] == [
-        ("a", 25, 50, False), ("a", 75, 100, False), ("b", 0, 15, False), ("b", 15, 30, False),
-    ]  # fmt: skip
+    jobs = plan_jobs({"a": 100, "b": 30}, {"a": [(0, 25), (50, 75)]}, workers=2)
+    assert _spans(jobs) == [
+        [("a", 25, 50, False), ("a", 75, 90, False)],
+        [("a", 90, 100, False), ("b", 0, 30, True)],
+    ]
     # a clip partly done is never whole again, even with one worker: its log comes from segments
-    assert plan_units({"a": 100}, {"a": [(0, 25)]}, workers=1) == [WorkUnit("a", 25, 100)]
+    assert plan_jobs({"a": 100}, {"a": [(0, 25)]}, workers=1) == [(WorkUnit("a", 25, 100),)]
 
 
 def test_gpus_are_dealt_round_robin():
