@@ -14,7 +14,7 @@ import os
 import resource
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,7 +178,7 @@ def planned_frames(num_frames: int, max_frames: int | None) -> int:
 
 def capture_frames(
     setup: ClipSetup,
-    frames: range,
+    frames: Iterable[int],
     stage_seconds: dict[str, float],
     encode: Callable[[SensorFrame | StateFrame], None],
     on_frame: Callable[[int], None] | None = None,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import fcntl
+import functools
 import io
 import multiprocessing
 import os
@@ -49,6 +50,12 @@ BACKENDS = ("local", "ray")
 # threads writing clips' logs from their segments beside the pool: a log is a copy of its
 # segments' chunks (0.1-0.3 s a clip), so two keep up with any number of workers
 MERGE_THREADS = 2
+# units a pool may split off running ones, per worker: the last frames of a run are handed out
+# in halves, so a few a worker balance it
+SPLITS_PER_WORKER = 4
+# what setting up a clip's world costs a worker taking part of a running unit, in frames of
+# work (1.9 s on a loaded H100 host against about 0.3 s a frame, docs/benchmarks.md)
+SETUP_FRAMES = 6
 INDEX_NAME = "index.parquet"
 
 
@@ -117,7 +124,11 @@ def frames_to_collect(root: Path, scenario_id: str, max_frames: int | None) -> i
 
 
 def _plan(
-    root: Path, scenario_ids: list[str], options: CollectOptions, workers: int
+    root: Path,
+    scenario_ids: list[str],
+    options: CollectOptions,
+    workers: int,
+    whole_clips: bool = True,
 ) -> tuple[list[Job], dict[str, int]]:
     """The jobs for these clips (see `segments.plan_jobs`), and each clip's frames.
     Segment files a crashed run finished are kept and only the frames they lack are planned;
@@ -139,7 +150,9 @@ def _plan(
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept
-    jobs = segments.plan_jobs(clip_frames, covered, workers, maps, options.sensor_every)
+    jobs = segments.plan_jobs(
+        clip_frames, covered, workers, maps, options.sensor_every, whole_clips
+    )
     return [*jobs, *((unit,) for unit in unreadable)], clip_frames
 
 
@@ -148,11 +161,13 @@ def run_unit(
     unit: WorkUnit,
     options: CollectOptions,
     on_frame: Callable[[int], None] | None = None,
+    claim: Callable[[int], bool] | None = None,
 ) -> JobResult:
-    """A whole clip into its log, or a segment into its segment file."""
+    """A whole clip into its log, or a segment into its segment file (`claim`: see
+    `segments.collect_segment`)."""
     if unit.whole:
         return collect_clip(root, unit.scenario_id, options, on_frame)
-    return segments.collect_segment(root, unit, options, on_frame)
+    return segments.collect_segment(root, unit, options, on_frame, claim)
 
 
 class _ClipTracker:
@@ -176,6 +191,10 @@ class _ClipTracker:
         self.ready = [s for s, frames in clip_frames.items() if frames and s not in self.waiting]
         for scenario_id in self.ready:
             self.clips[scenario_id] = JobResult(scenario_id, "collected")
+
+    def add(self, unit: WorkUnit) -> None:
+        """A unit split off a running one (`_run_pool`): the clip waits for it too."""
+        self.waiting[unit.scenario_id] += 1
 
     def finished(self, unit: WorkUnit, result: JobResult) -> str | None:
         """Count in a unit's result; returns the clip's id when its segments are all done and
@@ -272,7 +291,9 @@ def collect(
                 pending.append(scenario_id)
         if backend == "ray" and pending:  # units for every CPU of the cluster
             workers = max(workers, _start_ray())
-        jobs, clip_frames = _plan(root, pending, options, workers)
+        # the local pool splits running segments for idle workers: no piece is a whole clip
+        pooled = backend == "local" and workers > 1
+        jobs, clip_frames = _plan(root, pending, options, workers, whole_clips=not pooled)
         units = [unit for job in jobs for unit in job]
         total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
@@ -323,11 +344,14 @@ def _existing(scenario_id: str, path: Path) -> JobResult:
 
 
 _frames_done: multiprocessing.Queue | None = None
+_claims: Any = None  # the pool's `_Claims.shared`
 
 
-def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[int, ...]) -> None:
-    global _frames_done
-    _frames_done = frames_done
+def _init_worker(
+    frames_done: multiprocessing.Queue, started: Any, gpus: tuple[int, ...], claims: Any
+) -> None:
+    global _frames_done, _claims
+    _frames_done, _claims = frames_done, claims
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
@@ -340,10 +364,73 @@ def _init_worker(frames_done: multiprocessing.Queue, started: Any, gpus: tuple[i
     clean_up_when_stopped(remove_world_files)
 
 
-def _pooled_job(root: Path, job: Job, options: CollectOptions) -> list[JobResult]:
-    """A job's units in order, in a pool worker; a failed unit does not stop the next."""
+def _pooled_job(
+    root: Path, job: Job, options: CollectOptions, slots: tuple[int, ...]
+) -> list[JobResult]:
+    """A job's units in order, in a pool worker, each claiming its frames in its slot of
+    `_claims`; a failed unit does not stop the next."""
     frames_done = _frames_done
-    return [run_unit(root, unit, options, frames_done.put if frames_done else None) for unit in job]
+    return [
+        run_unit(
+            root,
+            unit,
+            options,
+            frames_done.put if frames_done else None,
+            functools.partial(_Claims.claim, _claims, slot),
+        )
+        for unit, slot in zip(job, slots, strict=True)
+    ]
+
+
+class _Claims:
+    """The frames each unit of a pool may still capture, shared with the workers. Slot k holds
+    the frame its unit captures next and the frame it stops before; a worker claims each frame
+    before capturing it (`claim`), and the parent moves a running unit's stop back to hand the
+    rest to an idle worker (`split`), under one lock, so no frame is captured twice or never."""
+
+    def __init__(self, slots: int) -> None:
+        self.shared = SPAWN.Array("q", 2 * slots)
+        self.used = 0
+
+    @property
+    def full(self) -> bool:
+        return self.used * 2 == len(self.shared)
+
+    def add(self, unit: WorkUnit) -> int:
+        """A slot for `unit` (there must be one left: `full`)."""
+        if self.full:
+            raise RuntimeError("no slot left for another unit")
+        slot, self.used = self.used, self.used + 1
+        with self.shared.get_lock():
+            self.shared[2 * slot], self.shared[2 * slot + 1] = unit.start, unit.stop
+        return slot
+
+    @staticmethod
+    def claim(shared: Any, slot: int, frame: int) -> bool:
+        """In a worker: whether `frame` is still this unit's to capture (then it is taken)."""
+        with shared.get_lock():
+            if frame >= shared[2 * slot + 1]:
+                return False
+            shared[2 * slot] = frame + 1
+            return True
+
+    def remaining(self, slot: int) -> int:
+        return self.shared[2 * slot + 1] - self.shared[2 * slot]
+
+    def split(self, slot: int, unit: WorkUnit, sensor_every: int) -> WorkUnit | None:
+        """The frames of `slot` (running `unit`) an idle worker takes: all of a unit not begun,
+        else the later half less a world's set-up (`SETUP_FRAMES`), from a sensor frame on;
+        None when fewer than `segments.MIN_PIECE_SENSOR_FRAMES` sensor frames would go."""
+        with self.shared.get_lock():
+            position, stop = self.shared[2 * slot], self.shared[2 * slot + 1]
+            at = position
+            if position > unit.start:
+                at = position + (stop - position + SETUP_FRAMES * sensor_every) // 2
+                at = -(-at // sensor_every) * sensor_every  # the next sensor frame
+            if stop - at < segments.MIN_PIECE_SENSOR_FRAMES * sensor_every:
+                return None
+            self.shared[2 * slot + 1] = at
+        return WorkUnit(unit.scenario_id, at, stop)
 
 
 def _run_pool(
@@ -356,17 +443,47 @@ def _run_pool(
     gpus: tuple[int, ...] = (),
 ) -> None:
     """Jobs on a pool of worker processes, longest first, handed out as workers free up (one
-    queued ahead for each). A clip whose segments are all done has its log written at once by
-    a thread of this process: writing a log from segments is a copy of their chunks, so it
-    takes no worker and the logs get written while the collection goes on."""
+    queued ahead for each). Once none is waiting, a worker that frees up takes the later half
+    of the running unit with the most frames left (`_Claims.split`): a clip's conditions make
+    its frames up to 1.3x dearer than another's, so equal shares of frames finish apart, and
+    the pool's wall time is then its even share plus about a world's set-up. A clip whose
+    segments are all done has its log written at once by a thread of this process: writing a
+    log from segments is a copy of their chunks, so it takes no worker and the logs get
+    written while the collection goes on."""
     frames_done = SPAWN.Queue()
     started = SPAWN.Value("i", 0)
+    units = sum(len(job) for job in jobs)
+    claims = _Claims(units + SPLITS_PER_WORKER * workers)
     with (
-        worker_pool(workers, _init_worker, (frames_done, started, gpus)) as pool,
+        worker_pool(workers, _init_worker, (frames_done, started, gpus, claims.shared)) as pool,
         ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
     ):
         waiting = collections.deque(jobs)
         running: dict[Future, Job | str] = {}  # a job, or the clip whose log is being written
+        slots: dict[Future, tuple[int, ...]] = {}  # a job's units' slots in `claims`
+
+        def submit(job: Job) -> None:
+            taken = tuple(claims.add(unit) for unit in job)
+            future = pool.submit(_pooled_job, root, job, options, taken)
+            running[future], slots[future] = job, taken
+
+        def split_one() -> bool:
+            """Give an idle worker the later frames of the unit with the most left."""
+            if claims.full:
+                return False
+            candidates = [
+                (claims.remaining(slot), slot, unit)
+                for future, job in running.items()
+                if not isinstance(job, str)
+                for unit, slot in zip(job, slots[future], strict=True)
+            ]
+            for _, slot, unit in sorted(candidates, key=lambda c: -c[0]):
+                piece = claims.split(slot, unit, options.sensor_every)
+                if piece is not None:
+                    tracker.add(piece)
+                    submit((piece,))
+                    return True
+            return False
 
         def merge(scenario_id: str) -> None:
             frames = tracker.clip_frames[scenario_id]
@@ -375,9 +492,12 @@ def _run_pool(
             )
 
         def hand_out() -> None:
-            while waiting and sum(not isinstance(j, str) for j in running.values()) < 2 * workers:
-                job = waiting.popleft()
-                running[pool.submit(_pooled_job, root, job, options)] = job
+            busy = sum(not isinstance(j, str) for j in running.values())
+            while waiting and busy < 2 * workers:
+                submit(waiting.popleft())
+                busy += 1
+            while not waiting and busy < workers and split_one():
+                busy += 1
 
         for scenario_id in tracker.ready:
             merge(scenario_id)
@@ -387,6 +507,7 @@ def _run_pool(
             _drain(frames_done, tick)
             for future in done:
                 job = running.pop(future)
+                slots.pop(future, None)
                 if isinstance(job, str):
                     tracker.merged(job, future.result())  # merge_clip never raises
                     continue

@@ -11,14 +11,20 @@ temporary name and renamed when whole, so a crash keeps every finished segment a
 collects only the frames no segment holds. A segment records the options it was made with; one
 made with other options is dropped.
 
-File layout: `MAGIC`, a length-prefixed JSON header (scenario, frames, options, the log's
-collection and label records), then per frame its number, time and chunks (each its length and
-bytes: a chunk record and its message indexes, as they go into the log), then `END`.
+A segment may end before the frames it was planned for: a worker that ran out of work takes
+the rest of a running segment (`runner._run_pool` moves its `stop`, `claim` below), so its
+frames are known only at its end.
+
+File layout: `MAGIC`, then per frame its number, time and chunks (each its length and bytes: a
+chunk record and its message indexes, as they go into the log), then the JSON header
+(scenario, first frame and the one after the last, options, the log's collection and label
+records), its length and `END`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import os
@@ -59,6 +65,7 @@ MIN_PIECE_SENSOR_FRAMES = 5
 
 _FRAME = struct.Struct("<IqI")  # frame, t_ns, chunks
 _CHUNK = struct.Struct("<Q")  # a chunk's bytes
+_TRAILER = struct.Struct("<I4s")  # the header's bytes (it comes just before), END
 
 
 @dataclass(frozen=True)
@@ -95,6 +102,7 @@ def plan_jobs(
     workers: int,
     maps: dict[str, str] | None = None,
     sensor_every: int = 1,
+    whole_clips: bool = True,
 ) -> list[Job]:
     """The work for clips of `clip_frames` (scenario id -> frames to collect) of which the
     frame ranges in `covered` are already in segment files, as one job per worker.
@@ -111,7 +119,8 @@ def plan_jobs(
     costs a world's set-up and a wait for the next, and with a few units a worker the last
     ones leave workers idle (at `--sensor-hz 2` the pool's wall time was 1.29x its even share,
     docs/benchmarks.md). With one worker each clip is its own job, whole clips written
-    straight into their logs."""
+    straight into their logs. `whole_clips=False`: every piece a segment, even a whole clip,
+    so that any running piece can be split (`runner._run_pool`)."""
     gaps = {s: uncovered(n, covered.get(s, [])) for s, n in clip_frames.items()}
     maps = maps or {}
     rank: dict[str, int] = {}
@@ -150,7 +159,8 @@ def plan_jobs(
         tuple(
             dataclasses.replace(
                 u,
-                whole=parts[u.scenario_id] == 1
+                whole=whole_clips
+                and parts[u.scenario_id] == 1
                 and gaps[u.scenario_id] == [(0, clip_frames[u.scenario_id])],
             )
             for u in job
@@ -254,30 +264,30 @@ def _read_exactly(stream: BinaryIO, size: int, path: Path) -> bytes:
     return data
 
 
-def _read_json(stream: BinaryIO, path: Path) -> dict:
-    (size,) = struct.unpack("<I", _read_exactly(stream, 4, path))
-    return json.loads(_read_exactly(stream, size, path))
-
-
-def _write_json(stream: BinaryIO, document: dict) -> None:
-    data = json.dumps(document).encode()  # key order kept: the log's records keep theirs
-    stream.write(struct.pack("<I", len(data)) + data)
-
-
 def read_header(path: Path) -> dict:
+    """A segment file's header (scenario, `start`, `stop`, options, the log's records), from
+    the trailer at its end."""
     with open(path, "rb") as stream:
         if stream.read(len(MAGIC)) != MAGIC:
             raise DriveE2EError(f"{path}: not a drivee2e segment file")
-        return _read_json(stream, path)
+        stream.seek(0, os.SEEK_END)
+        end = stream.tell()
+        if end < len(MAGIC) + _TRAILER.size:
+            raise DriveE2EError(f"{path}: segment file ends early (no trailer)")
+        stream.seek(end - _TRAILER.size)
+        size, marker = _TRAILER.unpack(stream.read(_TRAILER.size))
+        if marker != END or size > end - len(MAGIC) - _TRAILER.size:
+            raise DriveE2EError(f"{path}: segment file has no end marker")
+        stream.seek(end - _TRAILER.size - size)
+        return json.loads(stream.read(size))
 
 
 def read_frames(path: Path) -> Iterator[EncodedFrame]:
     """The encoded frames of a segment file, in order, their chunks read back from their bytes
-    (never inflated); the file must end with its trailer."""
+    (never inflated)."""
+    header = read_header(path)
     with open(path, "rb") as stream:
-        if stream.read(len(MAGIC)) != MAGIC:
-            raise DriveE2EError(f"{path}: not a drivee2e segment file")
-        header = _read_json(stream, path)
+        stream.seek(len(MAGIC))
         for _ in range(header["stop"] - header["start"]):
             frame, t_ns, count = _FRAME.unpack(_read_exactly(stream, _FRAME.size, path))
             chunks = []
@@ -286,8 +296,6 @@ def read_frames(path: Path) -> Iterator[EncodedFrame]:
                 data = _read_exactly(stream, size, path)
                 chunks.append(read_chunk(data, f"{path}: frame {frame}, chunk {k}"))
             yield EncodedFrame(frame, t_ns, tuple(chunks))
-        if stream.read(len(END)) != END:
-            raise DriveE2EError(f"{path}: segment file has no end marker")
 
 
 # ---------------------------------------------------------------------------- the two jobs
@@ -298,56 +306,66 @@ def collect_segment(
     unit: WorkUnit,
     options: CollectOptions,
     on_frame: Callable[[int], None] | None = None,
+    claim: Callable[[int], bool] | None = None,
 ) -> JobResult:
     """Capture a unit's frames into its segment file (never raises for a bad clip: see
-    `job.run_job`)."""
+    `job.run_job`). `claim(frame)` is asked before each frame: False ends the segment there
+    (another worker took the rest); the file is named for the frames it holds, and none is
+    written when the first frame is refused."""
     if unit.whole:
         raise ValueError(f"{unit.scenario_id}: a whole-clip unit writes its log directly")
     folder = segments_dir(root, unit.scenario_id)
 
+    def claimed() -> Iterator[int]:
+        for frame in range(unit.start, unit.stop):
+            if claim is not None and not claim(frame):
+                return
+            yield frame
+
     def work(result: JobResult) -> None:
+        result.status = "collected"
+        frames = claimed()
+        first = next(frames, None)
+        if first is None:
+            return  # all taken before it began: nothing to set up
         setup = open_clip(root, unit.scenario_id, options, range(unit.start, unit.stop))
         result.renderer = setup.world.renderer
-        scenario = setup.world.scenario
         encoder = FrameEncoder(
-            scenario,
+            setup.world.scenario,
             setup.world.intersection_map,
             setup.suite.rig,
             setup.suite.motion,
             camera_label_kinds=label_kinds(setup.labels),
         )
         folder.mkdir(parents=True, exist_ok=True)
-        final = folder / f"{unit.name}{SUFFIX}"
         temporary = folder / f"{unit.name}.{os.getpid()}{TEMPORARY_SUFFIX}"
         try:
             with open(temporary, "wb") as stream:
                 stream.write(MAGIC)
-                _write_json(
-                    stream,
-                    {
-                        "scenario_id": unit.scenario_id,
-                        "start": unit.start,
-                        "stop": unit.stop,
-                        "fingerprint": fingerprint(options),
-                        "collection": setup.collection,
-                        "labels": setup.labels,
-                    },
-                )
                 result.frames = capture_frames(
                     setup,
-                    range(unit.start, unit.stop),
+                    itertools.chain([first], frames),
                     result.stage_seconds,
                     lambda frame: _write_frame(stream, encoder.encode(frame)),
                     on_frame,
                     options.sensor_every,
                 )
-                stream.write(END)
+                done = WorkUnit(unit.scenario_id, unit.start, unit.start + result.frames)
+                header = {
+                    "scenario_id": unit.scenario_id,
+                    "start": done.start,
+                    "stop": done.stop,
+                    "fingerprint": fingerprint(options),
+                    "collection": setup.collection,
+                    "labels": setup.labels,
+                }
+                data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
+                stream.write(data + _TRAILER.pack(len(data), END))
                 stream.flush()
                 os.fsync(stream.fileno())
-            os.replace(temporary, final)
+            os.replace(temporary, folder / f"{done.name}{SUFFIX}")
         finally:
             temporary.unlink(missing_ok=True)
-        result.status = "collected"
 
     return run_job(unit.scenario_id, work)
 

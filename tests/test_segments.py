@@ -13,7 +13,7 @@ from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.collect import host, segments
+from drivee2e_data.collect import host, runner, segments
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import collect
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
@@ -213,6 +213,53 @@ def test_a_pool_cuts_one_long_clip_across_its_workers(
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     arguments = ["collect", str(root), "--max-frames", str(LONG_CLIP_FRAMES), "--workers", "2"]
     assert main([*arguments, *SMALL_COLLECT]) == 0
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+
+
+def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
+    """Claims, as a pool's workers and parent share them: a worker claims each frame before
+    capturing it; the parent gives an idle worker the later half of what is left, less a
+    world's set-up, from a sensor frame on; all of a unit not begun; nothing when too little
+    is left."""
+    claims = runner._Claims(3)
+    running = WorkUnit("a", 0, 100)
+    slot = claims.add(running)
+    assert all(runner._Claims.claim(claims.shared, slot, f) for f in range(10))
+    # 90 left: the thief takes from 10 + (90 + 6) // 2 = 58 on
+    assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 58, 100)
+    assert runner._Claims.claim(claims.shared, slot, 57)
+    assert not runner._Claims.claim(claims.shared, slot, 58)
+    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 30) // 2 = 70
+    sparse = claims.add(running)
+    runner._Claims.claim(claims.shared, sparse, 9)
+    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 70, 100)
+    # a unit not begun goes whole; then nothing is left to split
+    waiting = WorkUnit("b", 40, 80)
+    later = claims.add(waiting)
+    assert claims.split(later, waiting, sensor_every=1) == WorkUnit("b", 40, 80)
+    assert not runner._Claims.claim(claims.shared, later, 40)
+    assert claims.split(later, waiting, sensor_every=1) is None
+    assert claims.full
+    with pytest.raises(RuntimeError, match="no slot"):
+        claims.add(waiting)
+
+
+def test_a_split_unit_still_gives_the_one_worker_log(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch
+):
+    """Two workers given 32 and 4 of a clip's 36 frames: the one done first takes the later
+    half of the other's frames, and the log written from the three segments is the one-worker
+    log."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    unequal = [(WorkUnit(scenario_id, 0, 32),), (WorkUnit(scenario_id, 32, LONG_CLIP_FRAMES),)]
+    monkeypatch.setattr(segments, "plan_jobs", lambda *args, **kwargs: unequal)
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    summary = collect(root, options, workers=2)
+    (result,) = summary.results
+    assert result.status == "collected" and result.frames == LONG_CLIP_FRAMES
+    assert len(result.spans) == 3  # the two planned units and the piece split off the first
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
 
