@@ -56,6 +56,9 @@ SPLITS_PER_WORKER = 4
 # what setting up a clip's world costs a worker taking part of a running unit, in frames of
 # work (1.9 s on a loaded H100 host against about 0.3 s a frame, docs/benchmarks.md)
 SETUP_FRAMES = 6
+# the fewest sensor frames worth splitting off: with the set-up counted in the split, any piece
+# ends the run sooner; a piece of one frame would hardly be worth the world
+MIN_SPLIT_SENSOR_FRAMES = 2
 INDEX_NAME = "index.parquet"
 
 
@@ -186,6 +189,7 @@ class _ClipTracker:
         for unit in units:
             self.waiting[unit.scenario_id] = self.waiting.get(unit.scenario_id, 0) + 1
         self.clips: dict[str, JobResult] = {}
+        self.index_rows: dict[str, dict[str, list]] = {}  # of logs written here (`write_index`)
         # clips whose segments an earlier run finished, all of them, but whose log it did not
         # write (it stopped in between): their logs are written first
         self.ready = [s for s, frames in clip_frames.items() if frames and s not in self.waiting]
@@ -298,6 +302,12 @@ def collect(
         total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
         tracker = _ClipTracker(root, options, units, clip_frames)
+
+        def index() -> None:
+            indexing = time.perf_counter()
+            summary.index_rows = write_index(root, tracker.index_rows)
+            summary.index_seconds = time.perf_counter() - indexing
+
         try:
             if backend == "ray":
                 _run_ray(root, jobs, options, tracker, tick, gpus)
@@ -310,7 +320,7 @@ def collect(
                         tracker.merge(merge)
             else:
                 workers = min(workers, len(jobs))  # no idle workers
-                _run_pool(root, jobs, options, workers, tracker, tick, gpus)
+                _run_pool(root, jobs, options, workers, tracker, tick, gpus, then=index)
             summary.results.extend(tracker.results())
         except KeyboardInterrupt:
             for partial in logs.glob(f".*{PARTIAL_SUFFIX}"):
@@ -322,9 +332,8 @@ def collect(
         except OSError:
             pass  # none was made, or a failed clip's segments stay for the rerun
         summary.workers = workers
-        indexing = time.perf_counter()
-        summary.index_rows = write_index(root)
-        summary.index_seconds = time.perf_counter() - indexing
+        if summary.index_seconds == 0.0:  # not yet written beside the pool's exit
+            index()
         summary.wall_seconds = time.perf_counter() - start
     order = {s: i for i, s in enumerate(scenario_ids)}
     summary.results.sort(key=lambda r: order[r.scenario_id])
@@ -420,14 +429,14 @@ class _Claims:
     def split(self, slot: int, unit: WorkUnit, sensor_every: int) -> WorkUnit | None:
         """The frames of `slot` (running `unit`) an idle worker takes: all of a unit not begun,
         else the later half less a world's set-up (`SETUP_FRAMES`), from a sensor frame on;
-        None when fewer than `segments.MIN_PIECE_SENSOR_FRAMES` sensor frames would go."""
+        None when fewer than `MIN_SPLIT_SENSOR_FRAMES` sensor frames would go."""
         with self.shared.get_lock():
             position, stop = self.shared[2 * slot], self.shared[2 * slot + 1]
             at = position
             if position > unit.start:
                 at = position + (stop - position + SETUP_FRAMES * sensor_every) // 2
                 at = -(-at // sensor_every) * sensor_every  # the next sensor frame
-            if stop - at < segments.MIN_PIECE_SENSOR_FRAMES * sensor_every:
+            if stop - at < MIN_SPLIT_SENSOR_FRAMES * sensor_every:
                 return None
             self.shared[2 * slot + 1] = at
         return WorkUnit(unit.scenario_id, at, stop)
@@ -441,6 +450,7 @@ def _run_pool(
     tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
+    then: Callable[[], None] | None = None,
 ) -> None:
     """Jobs on a pool of worker processes, longest first, handed out as workers free up (one
     queued ahead for each). Once none is waiting, a worker that frees up takes the later half
@@ -449,7 +459,8 @@ def _run_pool(
     the pool's wall time is then its even share plus about a world's set-up. A clip whose
     segments are all done has its log written at once by a thread of this process: writing a
     log from segments is a copy of their chunks, so it takes no worker and the logs get
-    written while the collection goes on."""
+    written while the collection goes on; the thread makes the log's index rows too. `then`
+    runs after the last job, while the workers exit."""
     frames_done = SPAWN.Queue()
     started = SPAWN.Value("i", 0)
     units = sum(len(job) for job in jobs)
@@ -486,8 +497,7 @@ def _run_pool(
             return False
 
         def merge(scenario_id: str) -> None:
-            frames = tracker.clip_frames[scenario_id]
-            running[writers.submit(segments.merge_clip, root, scenario_id, options, frames)] = (
+            running[writers.submit(_merge_and_index, root, scenario_id, options, tracker)] = (
                 scenario_id
             )
 
@@ -523,6 +533,21 @@ def _run_pool(
                         merge(clip)
             hand_out()
         _drain(frames_done, tick)
+        pool.shutdown(wait=False)  # the workers exit while `then` runs
+        if then is not None:
+            then()
+
+
+def _merge_and_index(
+    root: Path, scenario_id: str, options: CollectOptions, tracker: _ClipTracker
+) -> JobResult:
+    """In a thread of the parent: the clip's log from its segments, then its index rows."""
+    result = segments.merge_clip(root, scenario_id, options, tracker.clip_frames[scenario_id])
+    if result.status == "collected":
+        rows = index_rows(root, log_path(root, scenario_id))
+        if rows is not None:
+            tracker.index_rows[scenario_id] = rows
+    return result
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:
@@ -615,38 +640,53 @@ def _gather_ray(
                     tracker.merge(merge)
 
 
-def write_index(root: Path) -> int:
-    """`logs/index.parquet`: one row per sensor frame (every frame at 10 Hz) of every finished log (scenario, frame,
-    t_ns, ego pose at the rear axle, speed, command, behaviour and conditions); returns rows."""
+def index_rows(root: Path, path: Path) -> dict[str, list] | None:
+    """One log's rows of `logs/index.parquet` (see `write_index`), by column; None for a log
+    that does not read or no longer matches its scenario."""
+    try:
+        with LogReader(path) as log:
+            frames = list(log.sensor_frames)
+    except LogFormatError:
+        return None  # not ours to index; `drivee2e logs --validate` names what is wrong
+    try:
+        scenario = store.read_scenario(root, path.stem, require_map=False)
+        motion = ego_motion(scenario)
+    except (DriveE2EError, ValueError):
+        return None  # the log outlived or no longer matches its scenario: nothing to index
+    behavior = scenario.behavior
+    each = len(frames)
+    return {
+        "scenario_id": [scenario.scenario_id] * each,
+        "map_id": [scenario.map_id] * each,
+        "frame": frames,
+        "t_ns": [int(scenario.t_ns[f]) for f in frames],
+        "x_m": [float(motion.x_m[f]) for f in frames],
+        "y_m": [float(motion.y_m[f]) for f in frames],
+        "yaw_rad": [float(motion.yaw_rad[f]) for f in frames],
+        "speed_mps": [float(motion.speed_mps[f]) for f in frames],
+        "command": [int(motion.command[f]) for f in frames],
+        "sub_scenario": [behavior.sub_scenario.value if behavior else None] * each,
+        "category": [behavior.category.value if behavior else None] * each,
+        "weather": [scenario.conditions.weather.value] * each,
+        "time_of_day": [scenario.conditions.time_of_day.value] * each,
+        "source": [scenario.source] * each,
+    }
+
+
+def write_index(root: Path, known: dict[str, dict[str, list]] | None = None) -> int:
+    """`logs/index.parquet`: one row per sensor frame (every frame at 10 Hz) of every finished
+    log (scenario, frame, t_ns, ego pose at the rear axle, speed, command, behaviour and
+    conditions); returns rows. `known`: rows already made of some logs (`index_rows`, by
+    scenario id), as a pool makes them while it collects."""
     root = Path(root)
+    known = known or {}
     columns: dict[str, list] = {name: [] for name in INDEX_SCHEMA.names}
     for path in sorted((root / LOGS_FOLDER).glob("*.mcap")):
-        try:
-            with LogReader(path) as log:
-                frames = list(log.sensor_frames)
-        except LogFormatError:
-            continue  # not ours to index; `drivee2e logs --validate` names what is wrong
-        try:
-            scenario = store.read_scenario(root, path.stem, require_map=False)
-            motion = ego_motion(scenario)
-        except (DriveE2EError, ValueError):
-            continue  # the log outlived or no longer matches its scenario: nothing to index
-        behavior = scenario.behavior
-        for frame in frames:
-            columns["scenario_id"].append(scenario.scenario_id)
-            columns["map_id"].append(scenario.map_id)
-            columns["frame"].append(frame)
-            columns["t_ns"].append(int(scenario.t_ns[frame]))
-            columns["x_m"].append(float(motion.x_m[frame]))
-            columns["y_m"].append(float(motion.y_m[frame]))
-            columns["yaw_rad"].append(float(motion.yaw_rad[frame]))
-            columns["speed_mps"].append(float(motion.speed_mps[frame]))
-            columns["command"].append(int(motion.command[frame]))
-            columns["sub_scenario"].append(behavior.sub_scenario.value if behavior else None)
-            columns["category"].append(behavior.category.value if behavior else None)
-            columns["weather"].append(scenario.conditions.weather.value)
-            columns["time_of_day"].append(scenario.conditions.time_of_day.value)
-            columns["source"].append(scenario.source)
+        rows = known.get(path.stem) or index_rows(root, path)
+        if rows is None:
+            continue
+        for name, values in rows.items():
+            columns[name].extend(values)
     table = pa.table(columns, schema=INDEX_SCHEMA)
     buffer = io.BytesIO()
     pq.write_table(table, buffer)
