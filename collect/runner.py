@@ -7,6 +7,7 @@ One collector per data root at a time: `logs/.collect.lock` is held for the whol
 
 from __future__ import annotations
 
+import atexit
 import collections
 import fcntl
 import functools
@@ -371,6 +372,17 @@ def _init_worker(
     cv2.setNumThreads(1)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     clean_up_when_stopped(remove_world_files)
+    atexit.register(_exit_at_once)  # run first: handlers run last registered first
+
+
+def _exit_at_once() -> None:
+    """A pool worker's exit once the pool is shut down: its twin's files deleted, then out,
+    without closing the world (pybullet, the GL context) or finalising the interpreter. Its
+    results and progress were sent before (`multiprocessing` flushes its queues ahead of
+    `atexit`), and the system frees the rest; the orderly way kept the run waiting a second or
+    more after its last frame on an H100 host (docs/benchmarks.md, "eighth session")."""
+    remove_world_files()
+    os._exit(0)
 
 
 def _pooled_job(
