@@ -190,7 +190,7 @@ class _ClipTracker:
         for unit in units:
             self.waiting[unit.scenario_id] = self.waiting.get(unit.scenario_id, 0) + 1
         self.clips: dict[str, JobResult] = {}
-        self.index_rows: dict[str, dict[str, list]] = {}  # of logs written here (`write_index`)
+        self.index_rows: dict[str, dict[str, list]] = {}  # of logs written here (`write_log`)
         # clips whose segments an earlier run finished, all of them, but whose log it did not
         # write (it stopped in between): their logs are written first
         self.ready = [s for s, frames in clip_frames.items() if frames and s not in self.waiting]
@@ -220,10 +220,20 @@ class _ClipTracker:
             return None
         return unit.scenario_id
 
+    def write_log(self, scenario_id: str) -> JobResult:
+        """The clip's log from its segments (`segments.merge_clip`), then its index rows (kept
+        for `write_index`); a pool runs it in a thread of this process."""
+        frames = self.clip_frames[scenario_id]
+        result = segments.merge_clip(self.root, scenario_id, self.options, frames)
+        if result.status == "collected":
+            rows = index_rows(self.root, log_path(self.root, scenario_id))
+            if rows is not None:
+                self.index_rows[scenario_id] = rows
+        return result
+
     def merge(self, scenario_id: str) -> None:
         """Write the clip's log from its segments (in this process)."""
-        frames = self.clip_frames[scenario_id]
-        self.merged(scenario_id, segments.merge_clip(self.root, scenario_id, self.options, frames))
+        self.merged(scenario_id, self.write_log(scenario_id))
 
     def merged(self, scenario_id: str, result: JobResult) -> None:
         """Count in the result of writing the clip's log (`segments.merge_clip`): its time in the
@@ -509,9 +519,7 @@ def _run_pool(
             return False
 
         def merge(scenario_id: str) -> None:
-            running[writers.submit(_merge_and_index, root, scenario_id, options, tracker)] = (
-                scenario_id
-            )
+            running[writers.submit(tracker.write_log, scenario_id)] = scenario_id
 
         def hand_out() -> None:
             busy = sum(not isinstance(j, str) for j in running.values())
@@ -548,18 +556,6 @@ def _run_pool(
         pool.shutdown(wait=False)  # the workers exit while `then` runs
         if then is not None:
             then()
-
-
-def _merge_and_index(
-    root: Path, scenario_id: str, options: CollectOptions, tracker: _ClipTracker
-) -> JobResult:
-    """In a thread of the parent: the clip's log from its segments, then its index rows."""
-    result = segments.merge_clip(root, scenario_id, options, tracker.clip_frames[scenario_id])
-    if result.status == "collected":
-        rows = index_rows(root, log_path(root, scenario_id))
-        if rows is not None:
-            tracker.index_rows[scenario_id] = rows
-    return result
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:

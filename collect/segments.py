@@ -132,7 +132,7 @@ def plan_jobs(
     count = max(1, min(workers, math.ceil(total / shortest_unit(sensor_every))))
     if count == 1 and workers <= 1:
         return [
-            (WorkUnit(s, a, b, whole=gaps[s] == [(0, clip_frames[s])]),)
+            (WorkUnit(s, a, b, whole=(a, b) == (0, clip_frames[s])),)
             for s, a, b in sorted(pieces, key=lambda p: p[1] - p[2])  # longest first
         ]
     cuts = _snapped_cuts(pieces, count, sensor_every)
@@ -152,16 +152,11 @@ def plan_jobs(
         if cuts and cuts[0] == offset:  # a cut between pieces
             cuts.pop(0)
             jobs.append([])
-    parts: dict[str, int] = {}
-    for unit in (u for job in jobs for u in job):
-        parts[unit.scenario_id] = parts.get(unit.scenario_id, 0) + 1
+    # a piece from frame 0 to the clip's end is the clip's only piece, with no segment before it
     planned = [
         tuple(
             dataclasses.replace(
-                u,
-                whole=whole_clips
-                and parts[u.scenario_id] == 1
-                and gaps[u.scenario_id] == [(0, clip_frames[u.scenario_id])],
+                u, whole=whole_clips and (u.start, u.stop) == (0, clip_frames[u.scenario_id])
             )
             for u in job
         )

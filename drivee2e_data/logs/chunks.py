@@ -13,6 +13,7 @@ from __future__ import annotations
 import struct
 import zlib
 from dataclasses import dataclass
+from functools import cached_property
 
 import zstandard
 from mcap.data_stream import RecordBuilder
@@ -69,11 +70,15 @@ class ChannelTable:
             )
         return ChannelTable(tuple(schemas), tuple(channels))
 
+    @cached_property
+    def _ids(self) -> dict[str, int]:
+        return {channel.topic: channel.id for channel in self.channels}
+
     def channel_id(self, topic: str) -> int:
-        for channel in self.channels:
-            if channel.topic == topic:
-                return channel.id
-        raise KeyError(f"topic {topic} has no channel in this log")
+        try:
+            return self._ids[topic]
+        except KeyError:
+            raise KeyError(f"topic {topic} has no channel in this log") from None
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,9 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
+from mcap.writer import MCAP0_MAGIC
 
 from drivee2e_data.logs.chunks import ChannelTable, FinishedChunk
-
-MAGIC = b"\x89MCAP0\r\n"
 
 
 class McapContainer:
@@ -49,7 +48,7 @@ class McapContainer:
             message_end_time=0,
             channel_message_counts=defaultdict(int),
         )
-        stream.write(MAGIC)
+        stream.write(MCAP0_MAGIC)
         self._write(Header(profile="", library=library), *channels.schemas, *channels.channels)
 
     def _write(self, *records: McapRecord) -> int:
@@ -133,4 +132,4 @@ class McapContainer:
                 summary_crc=crc,
             )
         )
-        self.stream.write(MAGIC)
+        self.stream.write(MCAP0_MAGIC)

@@ -132,7 +132,6 @@ class FrameEncoder:
         self.intersection_map, self.rig, self.motion = intersection_map, rig, motion
         self.first_frame = first_frame
         self.channels = log_channels(rig, camera_label_kinds)
-        self._channel_ids = {c.topic: c.id for c in self.channels.channels}
         self.signal_lanes = messages.signal_lanes(intersection_map)  # the same at every frame
         # the signal binding the ego at each frame of the clip, from its logged pose and route
         route = scenario.route.lane_ids if scenario.route is not None else ()
@@ -143,6 +142,10 @@ class FrameEncoder:
         self.sensors[rig.lidar.name] = rig.lidar.sensor_to_ego
         self.sensors.update({r.name: r.sensor_to_ego for r in rig.radars})
 
+    def _message(self, topic: str, message: Any) -> tuple[int, bytes]:
+        """A message as a chunk takes it: its topic's channel id and its bytes."""
+        return self.channels.channel_id(topic), message.SerializeToString()
+
     def encode_state(self, frame: StateFrame) -> EncodedFrame:
         """A frame between sensor frames (`collect --sensor-hz`): the pose, GNSS, IMU, ego state
         and traffic lights, one chunk."""
@@ -150,7 +153,7 @@ class FrameEncoder:
         chunk: list[tuple[int, bytes]] = []
 
         def put(topic: str, message: Any) -> None:
-            chunk.append((self._channel_ids[topic], message.SerializeToString()))
+            chunk.append(self._message(topic, message))
 
         put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
         put(topics.GNSS, messages.location_fix(t, frame, self.motion))
@@ -178,7 +181,7 @@ class FrameEncoder:
         chunks: list[list[tuple[int, bytes]]] = [[]]
 
         def put(topic: str, message: Any) -> None:
-            chunks[-1].append((self._channel_ids[topic], message.SerializeToString()))
+            chunks[-1].append(self._message(topic, message))
 
         def end_chunk() -> None:
             chunks.append([])
