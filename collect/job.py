@@ -79,9 +79,9 @@ class JobResult:
     error: str | None = None
     # frames collected on each Ray node (node id -> frames); empty for the local pool
     node_frames: dict[str, int] = field(default_factory=dict)
-    # (began, ended, process id) of each job that went into this result, epoch seconds: where a
-    # run's wall time went (`scripts/bench_collect.py` draws its timeline)
-    spans: list[tuple[float, float, int]] = field(default_factory=list)
+    # (began, ended, process id, seconds of set-up) of each job that went into this result,
+    # epoch seconds: where a run's wall time went (`scripts/bench_collect.py` draws its timeline)
+    spans: list[tuple[float, float, int, float]] = field(default_factory=list)
 
 
 def log_path(root: Path, scenario_id: str) -> Path:
@@ -152,10 +152,16 @@ class ClipSetup:
 
 
 def open_clip(
-    root: Path, scenario_id: str, options: CollectOptions, frames: range | None = None
+    root: Path,
+    scenario_id: str,
+    options: CollectOptions,
+    frames: range | None = None,
+    stage_seconds: dict[str, float] | None = None,
 ) -> ClipSetup:
     """This process's world for the clip (its twin kept when the map is the same), set up for
-    `frames` of it (all for None: `World.replay`), and the rig."""
+    `frames` of it (all for None: `World.replay`), and the rig; the time it took is added to
+    `stage_seconds["setup"]` where given."""
+    tick = time.perf_counter()
     world = _world_for(Path(root), scenario_id, options.renderer, options.post_process, frames)
     suite = SensorSuite(world, options.suite())
     collection = {
@@ -168,6 +174,8 @@ def open_clip(
         "sensor_hz": str(options.sensor_hz),
     }
     labels = label_metadata(suite, options) if options.camera_labels else None
+    if stage_seconds is not None:
+        stage_seconds["setup"] = stage_seconds.get("setup", 0.0) + time.perf_counter() - tick
     return ClipSetup(world, suite, collection, labels)
 
 
@@ -217,7 +225,7 @@ def collect_clip(
 
     def work(result: JobResult) -> None:
         first = None if options.max_frames is None else range(options.max_frames)
-        setup = open_clip(root, scenario_id, options, first)
+        setup = open_clip(root, scenario_id, options, first, result.stage_seconds)
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
         frames = range(planned_frames(scenario.num_frames, options.max_frames))
@@ -244,7 +252,8 @@ def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
     """Run `work` on a fresh result, timed; a bad clip or a bug becomes the result's error (with
     where a bug happened) instead of an exception, so one clip cannot stop the others."""
     start, began = time.perf_counter(), time.time()
-    result = JobResult(scenario_id, "failed", stage_seconds=dict.fromkeys((*STAGES, "write"), 0.0))
+    stages = dict.fromkeys((*STAGES, "write", "setup"), 0.0)
+    result = JobResult(scenario_id, "failed", stage_seconds=stages)
     try:
         work(result)
     except (DriveE2EError, ValueError, KeyError, OSError) as error:
@@ -256,6 +265,7 @@ def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
             f"{type(error).__name__}: {error} ({Path(where.filename).name}:{where.lineno})"
         )
     result.seconds = time.perf_counter() - start
-    result.spans = [(began, began + result.seconds, os.getpid())]
+    setup = result.stage_seconds["setup"]
+    result.spans = [(began, began + result.seconds, os.getpid(), setup)]
     result.peak_rss_bytes = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return result

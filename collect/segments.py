@@ -323,7 +323,9 @@ def collect_segment(
         first = next(frames, None)
         if first is None:
             return  # all taken before it began: nothing to set up
-        setup = open_clip(root, unit.scenario_id, options, range(unit.start, unit.stop))
+        setup = open_clip(
+            root, unit.scenario_id, options, range(unit.start, unit.stop), result.stage_seconds
+        )
         result.renderer = setup.world.renderer
         encoder = FrameEncoder(
             setup.world.scenario,

@@ -71,7 +71,7 @@ def run(root: Path, options: CollectOptions, workers: int) -> CollectSummary:
 def stage_table(summary: CollectSummary) -> dict[str, float]:
     """Milliseconds per frame in each stage, summed over workers."""
     frames = summary.frames
-    totals = dict.fromkeys((*STAGES, "write"), 0.0)
+    totals = dict.fromkeys((*STAGES, "write", "setup"), 0.0)
     for result in summary.of("collected"):
         for stage, seconds in result.stage_seconds.items():
             totals[stage] += seconds
@@ -267,7 +267,7 @@ def mix(args: argparse.Namespace) -> None:
         print(f"byte-identical to a one-worker run: {identical} of {args.identical} clips")
     rows = _condition_rows(summary, conditions)
     print("ms a frame, summed over stages of all workers, by condition:")
-    columns = (*STAGES, "write")
+    columns = (*STAGES, "write", "setup")
     print(f"  {'weather':<9}{'time':<14}{'clips':>5}{'frames':>7}" + "".join(
         f"{c[:8]:>9}" for c in columns) + f"{'total':>9}{'x clear':>9}")  # fmt: skip
     clear = _clear_day(rows)
@@ -298,21 +298,24 @@ def mix(args: argparse.Namespace) -> None:
 
 def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
     """Each worker's share of the wall time, averaged over workers: `start` before its first job,
-    `jobs` (its units; logs are written from segments by the parent), `gaps` between its jobs, `tail` after its last
-    job until the last job of the run ended, and `end` (the index and the rest) after that."""
-    per_worker: dict[int, list[tuple[float, float]]] = {}
+    its jobs (`setups`: how many, `setup`: their worlds' set-up, `frames`: the rest; logs are
+    written from segments by the parent), `gaps` between its jobs, `tail` after its last job
+    until the last job of the run ended, and `end` (the index and the rest) after that."""
+    per_worker: dict[int, list[tuple[float, float, float]]] = {}
     for result in summary.results:
-        for began, ended, pid in result.spans:
-            per_worker.setdefault(pid, []).append((began, ended))
+        for began, ended, pid, setup in result.spans:
+            per_worker.setdefault(pid, []).append((began, ended, setup))
     if not per_worker:
         return {}
-    last = max(e for spans in per_worker.values() for _, e in spans)
-    totals = dict.fromkeys(("start", "jobs", "gaps", "tail"), 0.0)
+    last = max(e for spans in per_worker.values() for _, e, _ in spans)
+    totals = dict.fromkeys(("start", "setups", "setup", "frames", "gaps", "tail"), 0.0)
     for spans in per_worker.values():
         spans.sort()
         totals["start"] += spans[0][0] - summary.started
-        totals["jobs"] += sum(e - b for b, e in spans)
-        totals["gaps"] += sum(b2 - e1 for (_, e1), (b2, _) in itertools.pairwise(spans))
+        totals["setups"] += len(spans)
+        totals["setup"] += sum(setup for _, _, setup in spans)
+        totals["frames"] += sum(e - b - setup for b, e, setup in spans)
+        totals["gaps"] += sum(b2 - e1 for (_, e1, _), (b2, _, _) in itertools.pairwise(spans))
         totals["tail"] += last - spans[-1][1]
     shares = {k: v / len(per_worker) for k, v in totals.items()}
     shares["end"] = summary.started + wall - last
@@ -321,7 +324,8 @@ def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
 
 
 def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None:
-    """Every unit on its worker's row, coloured by its clip's weather."""
+    """Every unit on its worker's row, coloured by its clip's weather, its world's set-up
+    hatched."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -333,11 +337,21 @@ def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None
     figure, axes = plt.subplots(figsize=(11, 0.3 * 16 + 1.5))
     for result in summary.results:
         weather = conditions[result.scenario_id].weather.value
-        for began, ended, pid in sorted(result.spans):
+        for began, ended, pid, setup in sorted(result.spans):
             row = rows.setdefault(pid, len(rows))
             axes.barh(row, ended - began, left=began - summary.started, height=0.8,
                       color=colours.get(weather, "#888888"), edgecolor="black",
                       linewidth=0.3)  # fmt: skip
+            axes.barh(
+                row,
+                setup,
+                left=began - summary.started,
+                height=0.8,
+                color="none",
+                hatch="////",
+                edgecolor="black",
+                linewidth=0,
+            )  # the world's set-up
     axes.axvline(summary.wall_seconds, color="red", linewidth=1)
     axes.set_xlim(0, 1.02 * summary.wall_seconds)
     axes.set_xlabel("seconds since the run began (red: the run's end, after the index)")
@@ -361,8 +375,9 @@ def _condition_rows(summary: CollectSummary, conditions: dict) -> dict[tuple[str
         for stage, seconds in result.stage_seconds.items():
             row["seconds"][stage] = row["seconds"].get(stage, 0.0) + seconds
     for row in rows.values():
-        for stage in (*STAGES, "write"):
+        for stage in (*STAGES, "write", "setup"):
             row[stage] = 1000 * row["seconds"].get(stage, 0.0) / row["frames"]
+        # a frame's own cost: set-ups depend on how the plan cut the clip, not on its conditions
         row["total"] = sum(row[stage] for stage in (*STAGES, "write"))
         del row["seconds"]
     return rows
