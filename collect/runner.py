@@ -54,9 +54,12 @@ MERGE_THREADS = 2
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
-# what setting up a clip's world costs a worker taking part of a running unit, in frames of
-# work (1.9 s on a loaded H100 host against about 0.3 s a frame, docs/benchmarks.md)
-SETUP_FRAMES = 6
+# what setting up a clip's world costs a worker taking part of a running unit, in sensor frames
+# of work (a sensor frame and the state frames up to the next: about 0.32 s on a loaded H100
+# host): a world on another map, its twin built, 1.1 s; on the map the worker's world shows, only
+# the actors replaced, 0.36 s (`scripts/bench_collect.py --sensor-hz 2`, docs/benchmarks.md)
+SETUP_FRAMES = 4
+REPLAY_SETUP_FRAMES = 1
 # the fewest sensor frames worth splitting off: with the set-up counted in the split, any piece
 # ends the run sooner; a piece of one frame would hardly be worth the world
 MIN_SPLIT_SENSOR_FRAMES = 2
@@ -133,8 +136,8 @@ def _plan(
     options: CollectOptions,
     workers: int,
     whole_clips: bool = True,
-) -> tuple[list[Job], dict[str, int]]:
-    """The jobs for these clips (see `segments.plan_jobs`), and each clip's frames.
+) -> tuple[list[Job], dict[str, int], dict[str, str]]:
+    """The jobs for these clips (see `segments.plan_jobs`), each clip's frames and its map.
     Segment files a crashed run finished are kept and only the frames they lack are planned;
     a clip whose bundle cannot be read gets one whole unit, whose job reports why."""
     segments.remove_temporary(root)
@@ -157,7 +160,7 @@ def _plan(
     jobs = segments.plan_jobs(
         clip_frames, covered, workers, maps, options.sensor_every, whole_clips
     )
-    return [*jobs, *((unit,) for unit in unreadable)], clip_frames
+    return [*jobs, *((unit,) for unit in unreadable)], clip_frames, maps
 
 
 def run_unit(
@@ -308,7 +311,7 @@ def collect(
             workers = max(workers, _start_ray())
         # the local pool splits running segments for idle workers: no piece is a whole clip
         pooled = backend == "local" and workers > 1
-        jobs, clip_frames = _plan(root, pending, options, workers, whole_clips=not pooled)
+        jobs, clip_frames, maps = _plan(root, pending, options, workers, whole_clips=not pooled)
         units = [unit for job in jobs for unit in job]
         total = sum(u.frames for u in units)
         tick = progress(total, len(pending)) if progress else None
@@ -331,7 +334,7 @@ def collect(
                         tracker.merge(merge)
             else:
                 workers = min(workers, len(jobs))  # no idle workers
-                _run_pool(root, jobs, options, workers, tracker, tick, gpus, then=index)
+                _run_pool(root, jobs, options, workers, tracker, tick, gpus, maps, then=index)
             summary.results.extend(tracker.results())
         except KeyboardInterrupt:
             for partial in logs.glob(f".*{PARTIAL_SUFFIX}"):
@@ -448,20 +451,47 @@ class _Claims:
     def remaining(self, slot: int) -> int:
         return self.shared[2 * slot + 1] - self.shared[2 * slot]
 
-    def split(self, slot: int, unit: WorkUnit, sensor_every: int) -> WorkUnit | None:
+    @staticmethod
+    def share(remaining: int, sensor_every: int, setup_frames: int) -> int:
+        """Sensor frames a taker gets of a running unit with `remaining` frames left, whose
+        world costs it `setup_frames` (see `split`)."""
+        return (remaining // sensor_every - setup_frames) // 2
+
+    def split(
+        self, slot: int, unit: WorkUnit, sensor_every: int, setup_frames: int = SETUP_FRAMES
+    ) -> WorkUnit | None:
         """The frames of `slot` (running `unit`) an idle worker takes: all of a unit not begun,
-        else the later half less a world's set-up (`SETUP_FRAMES`), from a sensor frame on;
-        None when fewer than `MIN_SPLIT_SENSOR_FRAMES` sensor frames would go."""
+        else the later half less the taker's set-up (`setup_frames` sensor frames), from a
+        sensor frame on; None when fewer than `MIN_SPLIT_SENSOR_FRAMES` sensor frames would
+        go."""
         with self.shared.get_lock():
             position, stop = self.shared[2 * slot], self.shared[2 * slot + 1]
             at = position
             if position > unit.start:
-                at = position + (stop - position + SETUP_FRAMES * sensor_every) // 2
+                at = position + (stop - position + setup_frames * sensor_every) // 2
                 at = -(-at // sensor_every) * sensor_every  # the next sensor frame
             if stop - at < MIN_SPLIT_SENSOR_FRAMES * sensor_every:
                 return None
             self.shared[2 * slot + 1] = at
         return WorkUnit(unit.scenario_id, at, stop)
+
+
+def split_order(
+    candidates: list[tuple[int, WorkUnit, int]],
+    taker_map: str | None,
+    maps: dict[str, str],
+    sensor_every: int,
+) -> list[tuple[int, WorkUnit, int]]:
+    """Running units (slot, unit, frames left) as an idle worker whose world shows `taker_map`
+    should try to split them: (slot, unit, its set-up in sensor frames), the most sensor frames
+    for the taker first (`_Claims.share`). A unit on the taker's map costs it only the actors
+    (`REPLAY_SETUP_FRAMES`), any other a twin too (`SETUP_FRAMES`)."""
+    ranked = []
+    for slot, unit, remaining in candidates:
+        same = taker_map is not None and maps.get(unit.scenario_id) == taker_map
+        setup = REPLAY_SETUP_FRAMES if same else SETUP_FRAMES
+        ranked.append((-_Claims.share(remaining, sensor_every, setup), slot, unit, setup))
+    return [(slot, unit, setup) for _, slot, unit, setup in sorted(ranked)]
 
 
 def _run_pool(
@@ -472,13 +502,16 @@ def _run_pool(
     tracker: _ClipTracker,
     tick: Callable[[int], None] | None,
     gpus: tuple[int, ...] = (),
+    maps: dict[str, str] | None = None,
     then: Callable[[], None] | None = None,
 ) -> None:
     """Jobs on a pool of worker processes, longest first, handed out as workers free up (one
     queued ahead for each). Once none is waiting, a worker that frees up takes the later half
-    of the running unit with the most frames left (`_Claims.split`): a clip's conditions make
-    its frames up to 1.3x dearer than another's, so equal shares of frames finish apart, and
-    the pool's wall time is then its even share plus about a world's set-up. A clip whose
+    of a running unit, less its set-up (`_Claims.split`): the unit that gives it the most
+    frames, counting a world on the map its own shows (`maps`: each clip's) as a cheap set-up.
+    A clip's conditions make its frames up to 1.3x dearer than another's, so equal shares of
+    frames finish apart, and the pool's wall time is then its even share plus about a world's
+    set-up. A clip whose
     segments are all done has its log written at once by a thread of this process: writing a
     log from segments is a copy of their chunks, so it takes no worker and the logs get
     written while the collection goes on; the thread makes the log's index rows too. `then`
@@ -500,21 +533,29 @@ def _run_pool(
             future = pool.submit(_pooled_job, root, job, options, taken)
             running[future], slots[future] = job, taken
 
+        maps_of = maps or {}
+        idle_maps: collections.deque[str | None] = collections.deque()  # freed workers' worlds
+
         def split_one() -> bool:
-            """Give an idle worker the later frames of the unit with the most left."""
+            """Give an idle worker the later frames of the unit that gives it the most."""
             if claims.full:
                 return False
             candidates = [
-                (claims.remaining(slot), slot, unit)
+                (slot, unit, claims.remaining(slot))
                 for future, job in running.items()
                 if not isinstance(job, str)
                 for unit, slot in zip(job, slots[future], strict=True)
             ]
-            for _, slot, unit in sorted(candidates, key=lambda c: -c[0]):
-                piece = claims.split(slot, unit, options.sensor_every)
+            taker_map = idle_maps[0] if idle_maps else None
+            for slot, unit, setup in split_order(
+                candidates, taker_map, maps_of, options.sensor_every
+            ):
+                piece = claims.split(slot, unit, options.sensor_every, setup)
                 if piece is not None:
                     tracker.add(piece)
                     submit((piece,))
+                    if idle_maps:
+                        idle_maps.popleft()
                     return True
             return False
 
@@ -526,6 +567,8 @@ def _run_pool(
             while waiting and busy < 2 * workers:
                 submit(waiting.popleft())
                 busy += 1
+            while len(idle_maps) > max(0, workers - busy):
+                idle_maps.popleft()  # those workers took queued jobs
             while not waiting and busy < workers and split_one():
                 busy += 1
 
@@ -548,9 +591,13 @@ def _run_pool(
                         JobResult(unit.scenario_id, "failed", error="the worker process died")
                         for unit in job
                     ]
+                world = None  # the map of the world the job's worker holds now
                 for unit, result in zip(job, results, strict=True):
+                    if result.stage_seconds.get("setup"):
+                        world = maps_of.get(unit.scenario_id)
                     if (clip := tracker.finished(unit, result)) is not None:
                         merge(clip)
+                idle_maps.append(world)
             hand_out()
         _drain(frames_done, tick)
         pool.shutdown(wait=False)  # the workers exit while `then` runs
