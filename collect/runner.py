@@ -55,11 +55,12 @@ MERGE_THREADS = 2
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
 # what setting up a clip's world costs a worker taking part of a running unit, in sensor frames
-# of work (a sensor frame and the state frames up to the next: about 0.32 s on a loaded H100
-# host): a world on another map, its twin built, 1.1 s; on the map the worker's world shows, only
-# the actors replaced, 0.36 s (`scripts/bench_collect.py --sensor-hz 2`, docs/benchmarks.md)
-SETUP_FRAMES = 4
-REPLAY_SETUP_FRAMES = 1
+# of work (a sensor frame and the state frames up to the next: 0.32-0.36 s on a loaded H100
+# host), its first frame's extra cost in the new world (0.2-0.3 s) included: a world on another
+# map, its twin built, 1.1-1.2 s; on the map the worker's world shows, only the actors replaced,
+# 0.36-0.44 s (`scripts/bench_collect.py --sensor-hz 2`, docs/benchmarks.md)
+SETUP_FRAMES = 5
+REPLAY_SETUP_FRAMES = 2
 # the fewest sensor frames worth splitting off: with the set-up counted in the split, any piece
 # ends the run sooner; a piece of one frame would hardly be worth the world
 MIN_SPLIT_SENSOR_FRAMES = 2
@@ -451,6 +452,10 @@ class _Claims:
     def remaining(self, slot: int) -> int:
         return self.shared[2 * slot + 1] - self.shared[2 * slot]
 
+    def begun(self, slot: int, unit: WorkUnit) -> bool:
+        """Whether the unit's worker has claimed its first frame."""
+        return self.shared[2 * slot] > unit.start
+
     @staticmethod
     def share(remaining: int, sensor_every: int, setup_frames: int) -> int:
         """Sensor frames a taker gets of a running unit with `remaining` frames left, whose
@@ -540,11 +545,14 @@ def _run_pool(
             """Give an idle worker the later frames of the unit that gives it the most."""
             if claims.full:
                 return False
+            # a job's first unit not begun was just handed out (a queued job would have been
+            # taken by the idle worker): splitting it would only take it from its worker
             candidates = [
                 (slot, unit, claims.remaining(slot))
                 for future, job in running.items()
                 if not isinstance(job, str)
-                for unit, slot in zip(job, slots[future], strict=True)
+                for k, (unit, slot) in enumerate(zip(job, slots[future], strict=True))
+                if k or claims.begun(slot, unit)
             ]
             taker_map = idle_maps[0] if idle_maps else None
             for slot, unit, setup in split_order(
