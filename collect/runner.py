@@ -49,10 +49,8 @@ from drivee2e_data.sim import egl_devices
 
 BACKENDS = ("local", "ray")
 # threads writing clips' logs from their segments beside the pool: a log is a copy of its
-# segments' chunks (0.1-1 s a clip). Splitting ends every worker's last piece at about the same
-# time, so the last three or four clips are written together after the last frame: a thread
-# each lets their copies and fsyncs overlap (the disk, not Python, sets their pace)
-MERGE_THREADS = 4
+# segments' chunks (0.1-0.3 s a clip), so two keep up with any number of workers
+MERGE_THREADS = 2
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
