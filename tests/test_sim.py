@@ -1,5 +1,8 @@
 """The pybullet twin and replay: known answers on a small synthetic scene."""
 
+import os
+import subprocess
+import sys
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
@@ -392,3 +395,21 @@ def test_rain_streaks_blend_as_opencvs_blend_linear_does_at_the_pixels_they_touc
         rained = _rain(rgb, np.random.default_rng(seed))
         assert np.array_equal(rained, expected)
         assert 0.005 < (rained != rgb).any(axis=2).mean() < 0.2  # streaks, not the whole image
+
+
+def test_a_new_twin_folder_clears_those_of_processes_gone(tmp_path: Path):
+    """Mesh folders are named for their process; those whose process no longer runs (a worker
+    killed before it could clean up) are deleted when the next is made, others are kept."""
+    gone = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
+    )
+    dead = tmp_path / f"drivee2e_twin_{int(gone.stdout)}_abc"
+    live = tmp_path / f"drivee2e_twin_{os.getpid()}_def"
+    unnamed = tmp_path / "drivee2e_twin_ghi"  # an older version's: whose it was is not known
+    for folder in (dead, live, unnamed):
+        folder.mkdir()
+        (folder / "mesh_00000.obj").write_text("v 0 0 0\n")
+    made = twin_module.mesh_folder(tmp_path)
+    assert made.is_dir() and made.name.startswith(f"drivee2e_twin_{os.getpid()}_")
+    assert not dead.exists()
+    assert live.is_dir() and unnamed.is_dir()

@@ -11,6 +11,8 @@ a pole (with a mast arm where the head hangs over the road) with one head whose 
 
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import tempfile
 import zlib
@@ -70,6 +72,34 @@ KIND_MATERIAL = {"ground": Material.GRASS, "road": Material.ASPHALT,
                  "stop_line": Material.MARKING, "building": Material.FACADE}  # fmt: skip
 
 
+MESH_FOLDER_PREFIX = "drivee2e_twin_"
+
+
+def mesh_folder(parent: Path | None = None) -> Path:
+    """A new folder for a twin's mesh files, named for this process
+    (`drivee2e_twin_<pid>_<random>` under `parent`, the system's temporary folder by default).
+    Folders left there by processes that no longer run (killed before they could clean up, as a
+    stopped collection's workers may be) are deleted first."""
+    parent = Path(tempfile.gettempdir()) if parent is None else Path(parent)
+    pattern = re.compile(rf"{MESH_FOLDER_PREFIX}(\d+)_")
+    for folder in parent.glob(f"{MESH_FOLDER_PREFIX}*_*"):
+        match = pattern.match(folder.name)
+        if match and not _running(int(match.group(1))):
+            shutil.rmtree(folder, ignore_errors=True)
+    return Path(tempfile.mkdtemp(prefix=f"{MESH_FOLDER_PREFIX}{os.getpid()}_", dir=parent))
+
+
+def _running(pid: int) -> bool:
+    """Whether a process with this id runs (one of another user counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 @dataclass
 class Twin:
     """Body ids of one built twin, and the lamps of each signal (red, yellow, green)."""
@@ -92,7 +122,7 @@ class Twin:
             self._raster = rasterize_paint(self.paint)
         return self._raster
 
-    mesh_dir: Path = field(default_factory=lambda: Path(tempfile.mkdtemp(prefix="drivee2e_twin_")))
+    mesh_dir: Path = field(default_factory=lambda: mesh_folder())
 
     def remove_files(self) -> None:
         """Delete the mesh files written for this twin (call after disconnecting)."""
