@@ -28,6 +28,10 @@ from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, StateF
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
+# what a job's `stage_seconds` hold: each frame's stages, writing it, and the world's set-up
+# (once a job, not a frame's: it depends on how the plan cut the clip)
+FRAME_STAGES = (*STAGES, "write")
+JOB_STAGES = (*FRAME_STAGES, "setup")
 
 
 @dataclass(frozen=True)
@@ -252,8 +256,7 @@ def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
     """Run `work` on a fresh result, timed; a bad clip or a bug becomes the result's error (with
     where a bug happened) instead of an exception, so one clip cannot stop the others."""
     start, began = time.perf_counter(), time.time()
-    stages = dict.fromkeys((*STAGES, "write", "setup"), 0.0)
-    result = JobResult(scenario_id, "failed", stage_seconds=stages)
+    result = JobResult(scenario_id, "failed", stage_seconds=dict.fromkeys(JOB_STAGES, 0.0))
     try:
         work(result)
     except (DriveE2EError, ValueError, KeyError, OSError) as error:

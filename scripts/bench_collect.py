@@ -53,10 +53,9 @@ from drivee2e_data import store
 from drivee2e_data.cli import build_parser
 from drivee2e_data.cli import main as cli_main
 from drivee2e_data.cli.collection import plan_collect
-from drivee2e_data.collect.job import CollectOptions, log_path
+from drivee2e_data.collect.job import FRAME_STAGES, JOB_STAGES, CollectOptions, log_path
 from drivee2e_data.collect.runner import CollectSummary, collect
 from drivee2e_data.logs.reader import validate
-from drivee2e_data.sensors.suite import STAGES
 from drivee2e_data.sim.world import RENDERERS
 
 
@@ -71,7 +70,7 @@ def run(root: Path, options: CollectOptions, workers: int) -> CollectSummary:
 def stage_table(summary: CollectSummary) -> dict[str, float]:
     """Milliseconds per frame in each stage, summed over workers."""
     frames = summary.frames
-    totals = dict.fromkeys((*STAGES, "write", "setup"), 0.0)
+    totals = dict.fromkeys(JOB_STAGES, 0.0)
     for result in summary.of("collected"):
         for stage, seconds in result.stage_seconds.items():
             totals[stage] += seconds
@@ -240,18 +239,18 @@ def mix(args: argparse.Namespace) -> None:
         conditions = {s: store.read_scenario(root, s, require_map=False).conditions for s in clips}
         identical = _identical(root, Path(folder), planned.options, summary, args.identical)
     work = sum(r.seconds for r in summary.results)
-    even = work / planned.workers
+    even = work / summary.workers
     frames = summary.frames
     print(
         f"real mix: {len(clips)} clips of synth --seed {args.seed}, "
         f"{'whole' if not args.max_frames else f'{args.max_frames} frames a clip'}; "
         f"renderer {summary.results[0].renderer}, {planned.options.lidar} LiDAR, "
-        f"{planned.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}, "
+        f"{summary.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}, "
         f"sensors at {planned.options.sensor_hz} Hz"
     )
     print(f"collected {frames / wall:6.2f} frames/s ({frames} frames in {wall:.1f} s)")
     print(
-        f"summed work {work:.1f} s / {planned.workers} workers = {even:.1f} s; wall / that = "
+        f"summed work {work:.1f} s / {summary.workers} workers = {even:.1f} s; wall / that = "
         f"{wall / even:.2f} (straggler share {100 * (1 - even / wall):.0f}% of the wall time)"
     )
     print(f"logs valid: {valid} of {len(clips)}")
@@ -267,7 +266,7 @@ def mix(args: argparse.Namespace) -> None:
         print(f"byte-identical to a one-worker run: {identical} of {args.identical} clips")
     rows = _condition_rows(summary, conditions)
     print("ms a frame, summed over stages of all workers, by condition:")
-    columns = (*STAGES, "write", "setup")
+    columns = JOB_STAGES
     print(f"  {'weather':<9}{'time':<14}{'clips':>5}{'frames':>7}" + "".join(
         f"{c[:8]:>9}" for c in columns) + f"{'total':>9}{'x clear':>9}")  # fmt: skip
     clear = _clear_day(rows)
@@ -288,7 +287,7 @@ def mix(args: argparse.Namespace) -> None:
     if args.json:
         args.json.write_text(json.dumps({
             "frames_per_second": frames / wall, "frames": frames, "wall_s": wall,
-            "summed_work_s": work, "workers": planned.workers, "gpus": list(planned.gpus),
+            "summed_work_s": work, "workers": summary.workers, "gpus": list(planned.gpus),
             "wall_over_even": wall / even, "valid_logs": valid, "clips": len(clips),
             "identical": identical, "peak_gib_per_worker": peak_gib, "mb_per_frame": mb,
             "conditions": {"/".join(k): v for k, v in rows.items()}, "wall_breakdown": lost,
@@ -375,10 +374,10 @@ def _condition_rows(summary: CollectSummary, conditions: dict) -> dict[tuple[str
         for stage, seconds in result.stage_seconds.items():
             row["seconds"][stage] = row["seconds"].get(stage, 0.0) + seconds
     for row in rows.values():
-        for stage in (*STAGES, "write", "setup"):
+        for stage in JOB_STAGES:
             row[stage] = 1000 * row["seconds"].get(stage, 0.0) / row["frames"]
         # a frame's own cost: set-ups depend on how the plan cut the clip, not on its conditions
-        row["total"] = sum(row[stage] for stage in (*STAGES, "write"))
+        row["total"] = sum(row[stage] for stage in FRAME_STAGES)
         del row["seconds"]
     return rows
 
