@@ -277,10 +277,11 @@ def read_header(path: Path) -> dict:
         return json.loads(stream.read(size))
 
 
-def read_frames(path: Path) -> Iterator[EncodedFrame]:
+def read_frames(path: Path, header: dict | None = None) -> Iterator[EncodedFrame]:
     """The encoded frames of a segment file, in order, their chunks read back from their bytes
-    (never inflated)."""
-    header = read_header(path)
+    (never inflated); `header`: the file's, where the caller has read it (`read_header`)."""
+    if header is None:
+        header = read_header(path)
     with open(path, "rb") as stream:
         stream.seek(len(MAGIC))
         for _ in range(header["stop"] - header["start"]):
@@ -375,7 +376,7 @@ def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: in
 
     def work(result: JobResult) -> None:
         found = finished_segments(root, scenario_id, options)
-        paths, headers = [p for p, _ in found], [h for _, h in found]
+        headers = [h for _, h in found]
         ranges = [(h["start"], h["stop"]) for h in headers]
         gaps = uncovered(frames, ranges)
         if gaps or sum(b - a for a, b in ranges) != frames:
@@ -402,8 +403,8 @@ def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: in
             headers[0]["labels"],
             sensor_every=options.sensor_every,
         ) as writer:
-            for segment in paths:
-                for encoded in read_frames(segment):
+            for segment, header in found:
+                for encoded in read_frames(segment, header):
                     writer.write_encoded(encoded)
         shutil.rmtree(segments_dir(root, scenario_id))
         result.renderer = headers[0]["collection"]["renderer"]
