@@ -49,7 +49,8 @@ from drivee2e_data.sim import egl_devices
 
 BACKENDS = ("local", "ray")
 # threads writing clips' logs from their segments beside the pool: a log is a copy of its
-# segments' chunks (0.1-0.3 s a clip), so two keep up with any number of workers
+# segments' chunks (0.1-1 s a clip), so two keep up with any number of workers (four did not
+# shorten the run's end on an H100 host: docs/benchmarks.md, "ninth session")
 MERGE_THREADS = 2
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
@@ -516,11 +517,10 @@ def _run_pool(
     frames, counting a world on the map its own shows (`maps`: each clip's) as a cheap set-up.
     A clip's conditions make its frames up to 1.3x dearer than another's, so equal shares of
     frames finish apart, and the pool's wall time is then its even share plus about a world's
-    set-up. A clip whose
-    segments are all done has its log written at once by a thread of this process: writing a
-    log from segments is a copy of their chunks, so it takes no worker and the logs get
-    written while the collection goes on; the thread makes the log's index rows too. `then`
-    runs after the last job, while the workers exit."""
+    set-up. A clip whose segments are all done has its log written at once by a thread of this
+    process: writing a log from segments is a copy of their chunks, so it takes no worker and
+    the logs get written while the collection goes on; the thread makes the log's index rows
+    too. `then` runs after the last job, while the workers exit."""
     frames_done = SPAWN.Queue()
     started = SPAWN.Value("i", 0)
     units = sum(len(job) for job in jobs)
