@@ -144,3 +144,72 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     assert np.array_equal(images[True].rgb, images[False].rgb)
     assert np.array_equal(images[True].depth_m, images[False].depth_m)
     assert np.array_equal(images[True].segmentation, images[False].segmentation)
+
+
+def test_walls_and_windows_facing_away_from_the_sun_are_drawn_without_the_shadow_lookup():
+    """Facade and window triangles whose normal points away from the sun go to their own groups
+    (compiled with SUN_AVERTED and without SHADOWS); those facing it, roofs and everything else
+    keep theirs. Windows cast no shadow (their walls do); averted walls still do."""
+    materials = [Material.FACADE, Material.FACADE, Material.FACADE, Material.WINDOW,
+                 Material.WINDOW_LIT, Material.ASPHALT]  # fmt: skip
+    normals = [(1, 0, 0), (-1, 0, 0), (0, 0, 1), (-1, 0, 0), (1, 0, 0), (-1, 0, 0)]
+    rows = np.zeros((3 * len(materials), FLOATS_PER_VERTEX), np.float32)
+    for k, (material, normal) in enumerate(zip(materials, normals, strict=True)):
+        rows[3 * k : 3 * k + 3, 0] = k
+        rows[3 * k : 3 * k + 3, 3:6] = normal
+        rows[3 * k : 3 * k + 3, -1] = material
+    sun = (0.6, 0.0, 0.8)  # in the east, high
+    ordered, batches = in_draw_order(rows, cells=False, light_direction=sun)
+    group_of = dict(zip(ordered[::3, 0].astype(int).tolist(), np.repeat(
+        batches.group, batches.count // 3).tolist(), strict=True))  # fmt: skip
+    groups = gl_batches.MATERIAL_GROUPS
+    facades = next(k for k, (m, _) in enumerate(groups) if Material.FACADE in m)
+    windows = next(k for k, (m, _) in enumerate(groups) if Material.WINDOW in m)
+    averted_facades, averted_windows = gl_batches.AVERTED[facades], gl_batches.AVERTED[windows]
+    assert group_of[0] == facades and group_of[2] == facades  # sunward wall, roof
+    assert group_of[1] == averted_facades
+    assert group_of[3] == averted_windows and group_of[4] == windows
+    assert group_of[5] not in gl_batches.AVERTED.values()  # only walls and windows
+    for group in (averted_facades, averted_windows):
+        defines = gl_batches.group_defines(group, ("SHADOWS", "FOG"))
+        assert "SUN_AVERTED" in defines and "SHADOWS" not in defines and "FOG" in defines
+    assert "SHADOWS" in gl_batches.group_defines(facades, ("SHADOWS",))
+    assert {windows, averted_windows} <= gl_batches.NOT_CASTING
+    assert not {facades, averted_facades} & gl_batches.NOT_CASTING
+    # without a sun every wall keeps its group
+    _, unsorted = in_draw_order(rows, cells=False)
+    assert averted_facades not in unsorted.group and averted_windows not in unsorted.group
+
+
+@pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
+def test_walls_drawn_without_the_shadow_lookup_where_the_sun_is_behind_them_look_the_same(
+    site, monkeypatch
+):
+    """The clip at a clear noon (sun and shadows), drawn with the walls that face away from the
+    sun in their own group and with every wall in one: the same image. (A window facing away
+    from the sun beyond the shadow map's square would lose a highlight that Blinn-Phong put
+    on it with the sun behind its wall; this view has none.)"""
+    import dataclasses
+    from datetime import datetime, timezone
+
+    from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
+
+    intersection_map, scenario = site
+    noon = Conditions(
+        Weather.CLEAR, TimeOfDay.NOON, datetime(2026, 6, 1, 4, 0, tzinfo=timezone.utc)
+    )
+    scenario = dataclasses.replace(scenario, conditions=noon)
+    facades = next(k for k, (m, _) in enumerate(gl_batches.MATERIAL_GROUPS)
+                   if Material.FACADE in m)  # fmt: skip
+    images = {}
+    for averted in (True, False):
+        split = dict(gl_batches.AVERTED) if averted else {}
+        monkeypatch.setattr(gl_batches, "AVERTED", split)
+        with World(intersection_map, scenario, renderer="gl") as world:
+            assert world.gl.look.shadows
+            groups = set(world.gl.static_batches.group.tolist())
+            assert (gl_batches.AVERTED.get(facades, -1) in groups) == averted
+            images[averted] = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
+    assert np.array_equal(images[True].rgb, images[False].rgb)
+    assert np.array_equal(images[True].depth_m, images[False].depth_m)
+    assert np.array_equal(images[True].segmentation, images[False].segmentation)

@@ -32,24 +32,43 @@ MATERIAL_GROUPS: tuple[tuple[frozenset[int], tuple[str, ...]], ...] = (
     (frozenset({Material.PAVEMENT}), ("HAS_PAVEMENT",)),
     (frozenset({Material.GRASS}), ("HAS_GRASS",)),
     (frozenset({Material.FOLIAGE}), ("HAS_FOLIAGE",)),
-    (frozenset({Material.FACADE}), ("HAS_FACADE", "GLOSSY")),
+    (frozenset({Material.WINDOW, Material.WINDOW_LIT}), ("HAS_WINDOW", "GLOSSY")),
+    (frozenset({Material.FACADE}), ("HAS_FACADE",)),
+    # walls and windows that face away from the sun (`in_draw_order`'s `light_direction`): no
+    # materials of their own; the sun's term is zero on them, so they skip the shadow lookup (a
+    # third of a wall's cost on llvmpipe) and look the same
+    (frozenset(), ("HAS_WINDOW", "GLOSSY", "SUN_AVERTED")),
+    (frozenset(), ("HAS_FACADE", "SUN_AVERTED")),
 )
+
+
+def _group_of(material: Material) -> int:
+    return next(k for k, (materials, _) in enumerate(MATERIAL_GROUPS) if material in materials)
+
+
+# each group of walls and windows, and the group its triangles facing away from the sun go to
+AVERTED = {
+    _group_of(Material.WINDOW): len(MATERIAL_GROUPS) - 2,
+    _group_of(Material.FACADE): len(MATERIAL_GROUPS) - 1,
+}
 GROUND_MATERIALS = frozenset(
     {Material.ASPHALT, Material.MARKING, Material.PAVEMENT, Material.GRASS}
 )
 # The groups that cast no shadow: the road, its paint and the grass lie at ground level, below
-# everything they could shade (raised sidewalks stay casters: their kerbs shade the gutter).
+# everything they could shade (raised sidewalks stay casters: their kerbs shade the gutter);
+# windows lie on walls that cast the same shadow.
 # Left out of the sun's shadow map, they no longer fill its 2048 x 2048 texels every state.
 NOT_CASTING = frozenset(
     index
-    for index, (materials, _) in enumerate(MATERIAL_GROUPS)
-    if materials <= {Material.ASPHALT, Material.MARKING, Material.GRASS}
+    for index, (materials, defines) in enumerate(MATERIAL_GROUPS)
+    if (materials and materials <= {Material.ASPHALT, Material.MARKING, Material.GRASS})
+    or "HAS_WINDOW" in defines
 )
 # the group of bodies drawn into the sun's shadow map alone (`SceneLights.casters`), after every
 # material group (the one past the end holds materials outside every group)
 SHADOW_ONLY = len(MATERIAL_GROUPS) + 1
 ALL_MATERIALS = ("HAS_ASPHALT", "HAS_MARKING", "HAS_PAVEMENT", "HAS_GRASS", "HAS_FOLIAGE",
-                 "HAS_FACADE", "GLOSSY")  # fmt: skip
+                 "HAS_FACADE", "HAS_WINDOW", "GLOSSY")  # fmt: skip
 # Cells of 24 m: a view's frustum leaves most of a 400 m scene's cells out, and a group's cells
 # stay few enough that the draws a view makes (one per run of visible cells) cost less than the
 # vertices they skip. Groups under MIN_SPLIT_VERTICES are one batch (a draw's own cost is worth
@@ -67,8 +86,10 @@ def group_defines(group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
     if group >= len(MATERIAL_GROUPS):
         return variant + ALL_MATERIALS
     materials, defines = MATERIAL_GROUPS[group]
-    if "WET" in variant and materials <= GROUND_MATERIALS:
+    if "WET" in variant and materials and materials <= GROUND_MATERIALS:
         defines = (*defines, "GLOSSY")
+    if "SUN_AVERTED" in defines:
+        variant = tuple(define for define in variant if define != "SHADOWS")
     return variant + defines
 
 
@@ -168,18 +189,28 @@ class DrawBatches:
 
 
 def in_draw_order(
-    vertices: NDArray[np.float32], cells: bool = True
+    vertices: NDArray[np.float32],
+    cells: bool = True,
+    light_direction: tuple[float, float, float] | None = None,
 ) -> tuple[NDArray[np.float32], DrawBatches]:
     """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles sorted into
     batches: by material group, the groups in the order of their first triangle (so what was
     drawn first mostly still is); with `cells`, inside a group of `MIN_SPLIT_VERTICES` or more,
     by the `CELL_M` cell of each triangle's centroid (row by row), each batch with its box;
-    otherwise in their order, the boxes unbounded."""
+    otherwise in their order, the boxes unbounded. With `light_direction` (towards the sun,
+    world frame), wall and window triangles that face away from it go to their `AVERTED` group."""
     if not len(vertices):
         return vertices, DrawBatches.empty()
     triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
     codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
     groups = _GROUP_OF[codes]
+    if light_direction is not None:
+        # flat walls: the first corner's normal is the triangle's; the sun's term is
+        # max(n . l, 0) in the shader, zero on all three corners of an averted triangle
+        normals = triangles[:, :, 3:6].astype(np.float64)
+        averted = np.all(normals @ np.asarray(light_direction, np.float64) <= 0.0, axis=1)
+        for facing, away in AVERTED.items():
+            groups[(groups == facing) & averted] = away
     present = np.flatnonzero(np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1))
     first = [int(np.argmax(groups == group)) for group in present]
     in_order = present[np.argsort(first)]

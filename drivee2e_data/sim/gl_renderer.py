@@ -244,11 +244,12 @@ class GLRenderer:
             # cut into cells that each view tests against its frustum (None: where GL draws
             # on the CPU); drawn whole otherwise
             self.cull = rasterises_on_cpu() if cull is None else cull
-            vertices, self.static_batches = in_draw_order(static_vertices(static_meshes),
-                                                          self.cull)  # fmt: skip
-            self.static_buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX)
-            self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
+            self.static_vertices = static_vertices(static_meshes)
+            self.static_buffer = None
+            self.static_light: tuple | None = None  # the sun the static batches were sorted by
             self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
+            self._sort_static(look.light_direction)
+            self.dynamic_buffer = context.buffer(reserve=4 * FLOATS_PER_VERTEX, dynamic=True)
             corners = np.array([[-1.0, -1.0], [3.0, -1.0], [-1.0, 3.0]], np.float32)
             self.sky_buffer = context.buffer(corners.tobytes())
             self.sky_array = context.vertex_array(
@@ -306,6 +307,25 @@ class GLRenderer:
         self.look = look
         self.shadowed = None
         self.lit = None
+        self._sort_static(look.light_direction)
+
+    def _sort_static(self, light_direction: tuple[float, float, float]) -> None:
+        """The twin's triangles into the static buffer in draw order, the walls and windows that
+        face away from the sun of `light_direction` in groups of their own (`gl_batches.AVERTED`);
+        again only when the sun moved (a world's next clip of the same map)."""
+        light = tuple(float(v) for v in light_direction)
+        if light == self.static_light:
+            return
+        vertices, self.static_batches = in_draw_order(self.static_vertices, self.cull, light)
+        with current(self.context):
+            for key in [k for k in self.arrays if k[0] == "static"]:
+                self.arrays.pop(key).release()
+            if self.static_buffer is not None:
+                self.static_buffer.release()
+            self.static_buffer = self.context.buffer(
+                vertices.tobytes() or b"\0" * 4 * FLOATS_PER_VERTEX
+            )
+        self.static_light = light
 
     def _apply_look(
         self,

@@ -159,3 +159,82 @@ def wear_raster(intersection_map: IntersectionMap) -> WearRaster:
     return WearRaster(
         (float(origin[0]), float(origin[1])), WEAR_CELL_M, np.dstack([values, mottle])
     )
+
+
+# Facades: storeys of 3.2 m (a common floor-to-floor height), one window bay every 3.4 m of
+# wall, the ground floor without windows (shop fronts and doors read as wall at this size).
+STOREY_M = 3.2
+BAY_M = 3.4
+WINDOW_SPAN_U = (0.22, 0.78)  # a window's share of its bay's width...
+WINDOW_SPAN_V = (0.30, 0.82)  # ...and of its storey's height (sill to lintel)
+PARAPET_M = 0.15  # the top storey's windows end at least this far below the roof...
+MIN_WINDOW_M = 1.0  # ...and are left out if that leaves them shorter than this
+# windows stand this far out from their wall: drawn first, they hide the wall behind them from
+# the depth test (2 cm is 7 depth-buffer steps at 150 m with the cameras' 0.5 m near plane)
+WINDOW_PROUD_M = 0.02
+LIT_WINDOW_SHARE = 0.25  # of windows lit at night (a residential block in the evening)
+# a lit window's warm light at three strengths (lamps and curtains differ)
+LIT_WINDOW_RGBAS = ((0.95, 0.78, 0.45, 1.0), (0.76, 0.62, 0.36, 1.0), (0.57, 0.47, 0.27, 1.0))
+
+
+@dataclass(frozen=True)
+class FacadeWindows:
+    """A building's windows as quads standing `WINDOW_PROUD_M` out from its walls: `(V, 3)`
+    vertices, four a window, and `(3T,)` indices, two triangles a window (counter-clockwise
+    seen from outside); `lit` `(W,)` the warm tone a window shows at night (an index into
+    `LIT_WINDOW_RGBAS`), -1 for a window that stays dark."""
+
+    vertices: NDArray[np.float64]
+    indices: NDArray[np.int64]
+    lit: NDArray[np.int64]
+
+    def subset(self, windows: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Vertices and indices of the windows selected by a `(W,)` mask."""
+        chosen = np.flatnonzero(windows)
+        vertices = self.vertices.reshape(-1, 4, 3)[chosen].reshape(-1, 3)
+        indices = (4 * np.arange(len(chosen))[:, None] + np.array([0, 1, 2, 0, 2, 3])).reshape(-1)
+        return vertices, indices
+
+
+def facade_windows(footprint_m: NDArray, height_m: float, seed: int) -> FacadeWindows:
+    """The windows of a building extruded from `footprint_m` `(N, 2)` to `height_m`: on each
+    wall, whole bays of `BAY_M` centred on the wall, a window in each bay of every storey above
+    the ground floor (the top storey's shortened to stay under the roof); which are lit at night
+    drawn from `seed`."""
+    ring = np.asarray(shapely.Polygon(footprint_m).exterior.coords)[:-1, :2]
+    if not shapely.Polygon(ring).exterior.is_ccw:
+        ring = ring[::-1]
+    rows = []  # (sill, lintel) of each storey's windows, m above the ground
+    for storey in range(1, int(height_m // STOREY_M) + 1):
+        sill = STOREY_M * (storey + WINDOW_SPAN_V[0])
+        lintel = min(STOREY_M * (storey + WINDOW_SPAN_V[1]), height_m - PARAPET_M)
+        if lintel - sill >= MIN_WINDOW_M:
+            rows.append((sill, lintel))
+    quads = []
+    for start, end in zip(ring, np.roll(ring, -1, axis=0), strict=True):
+        length = float(np.hypot(*(end - start)))
+        bays = int(length // BAY_M)
+        if bays == 0 or not rows:
+            continue
+        along = (end - start) / length
+        outward = np.array([along[1], -along[0]])  # a counter-clockwise ring's right side
+        margin = 0.5 * (length - bays * BAY_M)
+        u = margin + BAY_M * (np.arange(bays)[:, None] + np.array(WINDOW_SPAN_U))  # (bays, 2)
+        for bottom, top in rows:
+            left = start + u[:, :1] * along + WINDOW_PROUD_M * outward  # (bays, 2)
+            right = start + u[:, 1:] * along + WINDOW_PROUD_M * outward
+            corners = np.stack([np.column_stack([left, np.full(bays, bottom)]),
+                                np.column_stack([right, np.full(bays, bottom)]),
+                                np.column_stack([right, np.full(bays, top)]),
+                                np.column_stack([left, np.full(bays, top)])], axis=1)  # fmt: skip
+            quads.append(corners)
+    if not quads:
+        empty = np.zeros(0, np.int64)
+        return FacadeWindows(np.zeros((0, 3)), empty, empty)
+    vertices = np.concatenate(quads).reshape(-1, 3)
+    count = len(vertices) // 4
+    indices = (4 * np.arange(count)[:, None] + np.array([0, 1, 2, 0, 2, 3])).reshape(-1)
+    rng = np.random.default_rng(seed)
+    lit = np.where(rng.random(count) < LIT_WINDOW_SHARE,
+                   rng.integers(0, len(LIT_WINDOW_RGBAS), count), -1)  # fmt: skip
+    return FacadeWindows(vertices, indices, lit)

@@ -29,7 +29,9 @@ from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.models.mesh import Material, box_mesh
 from drivee2e_data.sim.obj_text import obj_text
 from drivee2e_data.sim.scenery import (
+    LIT_WINDOW_RGBAS,
     WearRaster,
+    facade_windows,
     generated_buildings,
     street_lamp_sites,
     wear_raster,
@@ -60,6 +62,7 @@ ZEBRA_STRIPE_M = 0.5
 # facades: renders, brick, concrete and stone, muted as city blocks are
 FACADE_RGBAS = ((0.72, 0.68, 0.60, 1.0), (0.60, 0.42, 0.34, 1.0), (0.58, 0.58, 0.60, 1.0),
                 (0.78, 0.74, 0.66, 1.0), (0.45, 0.47, 0.52, 1.0), (0.66, 0.56, 0.44, 1.0))  # fmt: skip
+WINDOW_RGBA = (0.12, 0.14, 0.17, 1.0)  # dark glass (a lit window by day looks the same)
 CROWN_RGBAS = ((0.20, 0.42, 0.16, 1.0), (0.26, 0.46, 0.18, 1.0), (0.16, 0.36, 0.17, 1.0))
 CROWN_CLUSTERS = 3  # spheres per crown, each 72 triangles: the old crown's 192 in all
 STREET_LAMP_HEIGHT_M = 8.0
@@ -204,6 +207,9 @@ class TwinBuilder:
         self.p, self.client = pybullet, client
         self.twin = Twin(client)
         self.batches: dict[tuple[str, tuple, bool, Material], _Batch] = {}
+        # triangles for the GL renderer alone, part of a batch's body (the key of the batch
+        # that hosts them), each by colour and material: the buildings' windows
+        self.glass: dict[tuple, dict[tuple[tuple, Material], _Batch]] = {}
 
     def _add(
         self,
@@ -248,29 +254,34 @@ class TwinBuilder:
         return visual, collision
 
     def _finish(self) -> None:
-        """One body per batch, in the order the batches began."""
-        for (kind, rgba, collide, material), batch in self.batches.items():
+        """One body per batch, in the order the batches began; the GL-only triangles a batch
+        hosts come just before its own (windows are drawn before the walls they stand on)."""
+        for key, batch in self.batches.items():
+            kind, rgba, collide, material = key
             visual, collision = self._mesh(batch, rgba, collide)
             body = self.p.createMultiBody(
                 0, collision, visual, [0, 0, 0], physicsClientId=self.client
             )
             self.twin.bodies.append(body)
             self.twin.segmentation[body] = kind
-            normals = None
-            if all(n is not None for n in batch.normals):
-                normals = np.concatenate(batch.normals)
-            self.twin.meshes.append(
-                TwinMesh(
-                    body,
-                    kind,
-                    rgba,
-                    material,
-                    np.concatenate(batch.vertices),
-                    np.concatenate(batch.indices),
-                    normals,
-                )
-            )
+            for (glass_rgba, glass_material), glass in self.glass.pop(key, {}).items():
+                self.twin.meshes.append(_twin_mesh(body, kind, glass_rgba, glass_material, glass))
+            self.twin.meshes.append(_twin_mesh(body, kind, rgba, material, batch))
         self.batches = {}
+
+    def _windows(self, building, rgba: tuple) -> None:
+        """A building's windows (`scenery.facade_windows`), hosted by its walls' batch: dark
+        ones in one batch, the ones lit at night in one a tone."""
+        windows = facade_windows(building.footprint_m, building.height_m,
+                                 zlib.crc32(building.building_id.encode()))  # fmt: skip
+        host = ("building", tuple(rgba), True, Material.FACADE)
+        parts = [(WINDOW_RGBA, Material.WINDOW, windows.lit < 0)]
+        parts += [(lit, Material.WINDOW_LIT, windows.lit == tone)
+                  for tone, lit in enumerate(LIT_WINDOW_RGBAS)]  # fmt: skip
+        for glass_rgba, material, chosen in parts:
+            if chosen.any():
+                batch = self.glass.setdefault(host, {}).setdefault((glass_rgba, material), _Batch())
+                batch.add(*windows.subset(chosen), None)
 
     def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str,
               material: Material | None = None) -> None:  # fmt: skip
@@ -320,6 +331,7 @@ class TwinBuilder:
             self._flat(stop_line_band(stop_line.line_m), 2 * PAINT_Z_M, WHITE_RGBA, "stop_line")
         for building in m.buildings or generated_buildings(m):
             rgba = FACADE_RGBAS[zlib.crc32(building.building_id.encode()) % len(FACADE_RGBAS)]
+            self._windows(building, rgba)
             self._prism(building.footprint_m, 0.0, building.height_m, rgba, "building")
         for tree in m.trees:
             self._tree(tree.position_m, tree.height_m, tree.crown_radius_m)
@@ -417,6 +429,14 @@ class TwinBuilder:
             self.twin.segmentation[body] = "signal"
             lamps.append((body, colour))
         self.twin.lamps.setdefault(signal_id, []).extend(lamps)
+
+
+def _twin_mesh(body: int, kind: str, rgba: tuple, material: Material, batch: _Batch) -> TwinMesh:
+    normals = None
+    if all(n is not None for n in batch.normals):
+        normals = np.concatenate(batch.normals)
+    return TwinMesh(body, kind, rgba, material, np.concatenate(batch.vertices),
+                    np.concatenate(batch.indices), normals)  # fmt: skip
 
 
 def prism_mesh(

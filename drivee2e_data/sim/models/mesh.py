@@ -34,6 +34,8 @@ class Material(enum.IntEnum):
     MARKING = 9  # road paint: worn
     TYRE = 10  # black rubber
     STREET_LAMP = 11  # a street lamp's face: shines when the street lamps are on
+    WINDOW = 12  # a building's window: dark glass, the sky and sun reflected
+    WINDOW_LIT = 13  # the same by day; at night it shines its vertex colour (a lit room)
 
 
 class Light(enum.IntEnum):

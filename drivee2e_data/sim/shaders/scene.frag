@@ -10,9 +10,10 @@
 // a clip does not use cost nothing, where a uniform switch still cost a third of an image on
 // llvmpipe): SHADOWS (the sun's shadow map), NIGHT (street lamps, headlights, lit windows),
 // WET (darker, glossy ground), FOG (fog by depth). And per draw, the materials it holds:
-// HAS_ASPHALT, HAS_MARKING, HAS_PAVEMENT, HAS_GRASS, HAS_FOLIAGE, HAS_FACADE (their textures'
-// code) and GLOSSY (highlights and reflections); llvmpipe runs every branch for every pixel,
-// so a draw pays only for the code its materials need.
+// HAS_ASPHALT, HAS_MARKING, HAS_PAVEMENT, HAS_GRASS, HAS_FOLIAGE, HAS_FACADE, HAS_WINDOW (their
+// textures' code), GLOSSY (highlights and reflections) and SUN_AVERTED (surfaces that face away
+// from the sun: its term is zero there, so no shadow lookup); llvmpipe runs every branch for
+// every pixel, so a draw pays only for the code its materials need.
 #define LAMP_WALL_SHARE 0.35  // a wall gets this share of what level ground under it gets
 #define BEAM_WALL_SHARE 1.0  // and of a headlight's (a beam meets it more squarely)
 #define BEAM_HEIGHT_M 4.0  // headlights light surfaces below this
@@ -28,6 +29,9 @@
 #define MARKING 9
 #define TYRE 10
 #define STREET_LAMP 11
+#define WINDOW 12
+#define WINDOW_LIT 13
+#define WINDOW_GLASS vec3(0.12, 0.14, 0.17)  // a window by day, lit or not
 uniform vec3 sky_ambient;
 uniform vec3 ground_ambient;
 uniform sampler2DShadow shadow_map;
@@ -56,7 +60,9 @@ layout(location = 1) out float body_out;
 layout(location = 2) out float depth_out;
 
 float sunlit() {
-#ifndef SHADOWS
+#if defined(SUN_AVERTED)
+    return 0.0;
+#elif !defined(SHADOWS)
     return 1.0;
 #else
     vec3 p = shadow_position.xyz / shadow_position.w * 0.5 + 0.5;
@@ -109,26 +115,23 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
     }
 #endif
 #ifdef HAS_FACADE
-    if (material == FACADE) {
+    if (material == FACADE) {  // walls and roofs (the windows are quads of their own)
         if (abs(n.z) > 0.5) return base * 0.55;  // roofs: dark gravel
-        vec2 tangent = normalize(vec2(-n.y, n.x));
-        float u = dot(world_position.xy, tangent) / 3.4;
-        float v = world_position.z / 3.2;  // storeys of 3.2 m
-        vec2 cell = vec2(floor(u), floor(v));
-        float inside = step(0.22, fract(u)) * step(fract(u), 0.78)
-            * step(0.3, fract(v)) * step(fract(v), 0.82) * step(1.0, v);
-        float band = 1.0 - 0.12 * step(0.92, fract(v));  // floor slabs
-        if (inside > 0.5) {
-            shine = vec2(0.5, 80.0);
-            // some windows lit at night, by a hash of the window
-            float chance = hash(cell + floor(world_position.xy / 50.0));
-#ifdef NIGHT
-            glow = step(0.75, chance);
+        float band = 1.0 - 0.12 * step(0.92, fract(world_position.z / 3.2));  // floor slabs
+        // grime: a little darker towards the street
+        return base * band * (0.9 + 0.1 * clamp(world_position.z / 6.0, 0.0, 1.0));
+    }
 #endif
-            vec3 warm = vec3(0.95, 0.78, 0.45) * (0.55 + 1.8 * (chance - 0.75));
-            return mix(vec3(0.12, 0.14, 0.17), warm, glow);
+#ifdef HAS_WINDOW
+    if (material == WINDOW || material == WINDOW_LIT) {
+        shine = vec2(0.5, 80.0);
+#ifdef NIGHT
+        if (material == WINDOW_LIT) {  // a lit room: its warm colour
+            glow = 1.0;
+            return base;
         }
-        return base * band * (0.94 + 0.1 * hash(cell));
+#endif
+        return WINDOW_GLASS;
     }
 #endif
     if (material == PAINT) shine = vec2(0.35, 40.0);
