@@ -124,7 +124,8 @@ def site(tmp_path_factory):
 def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     """The same frame drawn with the scene cut into cells (most of them skipped by the front
     camera: what a renderer on the CPU does) and as one batch per material group, all drawn
-    (what it does on a GPU): the same image."""
+    (what it does on a GPU; but the crowns, whose level of detail is chosen by cell on both):
+    the same image."""
     intersection_map, scenario = site
     ego = scenario.ego
     eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
@@ -139,8 +140,13 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
                 assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
                 skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))
                 assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
-            else:
-                assert len(batches.group) == len(batches.groups)
+            else:  # one batch a group, unbounded; the crowns in cells (their level of detail)
+                crowns = np.isin(batches.group, (gl_batches.NEAR_FOLIAGE, gl_batches.FAR_FOLIAGE))
+                assert (
+                    np.isinf(batches.low_m[~crowns]).all()
+                    and np.isfinite(batches.low_m[crowns]).all()
+                )
+                assert len(batches.group[~crowns]) == len(set(batches.group[~crowns].tolist()))
     assert np.array_equal(images[True].rgb, images[False].rgb)
     assert np.array_equal(images[True].depth_m, images[False].depth_m)
     assert np.array_equal(images[True].segmentation, images[False].segmentation)
@@ -213,3 +219,25 @@ def test_walls_drawn_without_the_shadow_lookup_where_the_sun_is_behind_them_look
     assert np.array_equal(images[True].rgb, images[False].rgb)
     assert np.array_equal(images[True].depth_m, images[False].depth_m)
     assert np.array_equal(images[True].segmentation, images[False].segmentation)
+
+
+def test_crowns_are_detailed_near_the_eye_and_coarse_beyond_and_a_tree_stays_in_one_cell():
+    """Crown batches whose box comes within FOLIAGE_DETAIL_M of the eye draw their detailed
+    mesh and hide the coarse one; beyond, the reverse; other batches always draw. Triangles
+    anchored at a trunk fall in the trunk's cell, wherever their own centroid lies."""
+    near, far = gl_batches.NEAR_FOLIAGE, gl_batches.FAR_FOLIAGE
+    reach = gl_batches.FOLIAGE_DETAIL_M
+    low = np.array([[10, 0, 0], [10, 0, 0], [reach + 5, 0, 0], [reach + 5, 0, 0], [500, 0, 0]])
+    batches = DrawBatches(np.array([near, far, near, far, 0]), np.arange(5) * 3,
+                          np.full(5, 3), low.astype(float), low + 2.0)  # fmt: skip
+    drawn = gl_batches.level_of_detail(batches, np.zeros(3))
+    assert drawn.tolist() == [True, False, False, True, True]
+    # a crown across a cell border: half its triangles' centroids west of it, half east
+    centres = np.array([[CELL_M - 2.0, 1.0]] * 1000 + [[CELL_M + 1.0, 1.0]] * 1000)
+    rows = _triangle_rows(centres, Material.FOLIAGE)
+    _, by_centroid = in_draw_order(rows)
+    _, by_trunk = in_draw_order(rows, anchors_xy=np.tile([CELL_M + 0.5, 1.0], (2000, 1)))
+    assert len(by_centroid.group) == 2 and len(by_trunk.group) == 1
+    # the one batch's box is still its triangles'
+    np.testing.assert_allclose(by_trunk.low_m[0, :2], [CELL_M - 2.0, 1.0])
+    np.testing.assert_allclose(by_trunk.high_m[0, :2], [CELL_M + 1.5, 1.5])

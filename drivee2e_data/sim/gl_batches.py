@@ -32,6 +32,7 @@ MATERIAL_GROUPS: tuple[tuple[frozenset[int], tuple[str, ...]], ...] = (
     (frozenset({Material.PAVEMENT}), ("HAS_PAVEMENT",)),
     (frozenset({Material.GRASS}), ("HAS_GRASS",)),
     (frozenset({Material.FOLIAGE}), ("HAS_FOLIAGE",)),
+    (frozenset({Material.FOLIAGE_FAR}), ("HAS_FOLIAGE",)),
     (frozenset({Material.WINDOW, Material.WINDOW_LIT}), ("HAS_WINDOW", "GLOSSY")),
     (frozenset({Material.FACADE}), ("HAS_FACADE",)),
     # walls and windows that face away from the sun (`in_draw_order`'s `light_direction`): no
@@ -46,6 +47,12 @@ def _group_of(material: Material) -> int:
     return next(k for k, (materials, _) in enumerate(MATERIAL_GROUPS) if material in materials)
 
 
+# Crowns are drawn from two meshes (`twin.CROWN_SPHERES`): the detailed one where a batch's box
+# comes within FOLIAGE_DETAIL_M of the eye, the coarse one beyond (a crown there spans under
+# 150 pixels of the front camera), and the coarse one into the sun's shadow map
+FOLIAGE_DETAIL_M = 40.0
+NEAR_FOLIAGE = _group_of(Material.FOLIAGE)
+FAR_FOLIAGE = _group_of(Material.FOLIAGE_FAR)
 # each group of walls and windows, and the group its triangles facing away from the sun go to
 AVERTED = {
     _group_of(Material.WINDOW): len(MATERIAL_GROUPS) - 2,
@@ -63,6 +70,11 @@ NOT_CASTING = frozenset(
     for index, (materials, defines) in enumerate(MATERIAL_GROUPS)
     if (materials and materials <= {Material.ASPHALT, Material.MARKING, Material.GRASS})
     or "HAS_WINDOW" in defines
+)
+# Windows stand 2 cm out from the walls they belong to (same body, same kind): views of ids and
+# depth alone (the depth-image LiDAR) leave them out, reading the wall behind instead
+DECALS = frozenset(
+    index for index, (_, defines) in enumerate(MATERIAL_GROUPS) if "HAS_WINDOW" in defines
 )
 # the group of bodies drawn into the sun's shadow map alone (`SceneLights.casters`), after every
 # material group (the one past the end holds materials outside every group)
@@ -188,17 +200,29 @@ class DrawBatches:
         return draws
 
 
+def level_of_detail(batches: DrawBatches, eye_m: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """`(B,)` which batches a view from `eye_m` (world frame) draws at their level of detail:
+    detailed crowns whose box comes within `FOLIAGE_DETAIL_M`, coarse ones whose box does not;
+    every other batch."""
+    nearest = np.clip(np.asarray(eye_m, np.float64), batches.low_m, batches.high_m)
+    near = np.linalg.norm(nearest - eye_m, axis=1) <= FOLIAGE_DETAIL_M
+    return ~(((batches.group == NEAR_FOLIAGE) & ~near) | ((batches.group == FAR_FOLIAGE) & near))
+
+
 def in_draw_order(
     vertices: NDArray[np.float32],
     cells: bool = True,
     light_direction: tuple[float, float, float] | None = None,
+    anchors_xy: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float32], DrawBatches]:
     """`vertices` (rows of `VERTEX_FORMAT`, three to a triangle) with their triangles sorted into
     batches: by material group, the groups in the order of their first triangle (so what was
     drawn first mostly still is); with `cells`, inside a group of `MIN_SPLIT_VERTICES` or more,
     by the `CELL_M` cell of each triangle's centroid (row by row), each batch with its box;
-    otherwise in their order, the boxes unbounded. With `light_direction` (towards the sun,
-    world frame), wall and window triangles that face away from it go to their `AVERTED` group."""
+    otherwise in their order, the boxes unbounded (but the crowns', always in cells). With `light_direction` (towards the sun,
+    world frame), wall and window triangles that face away from it go to their `AVERTED` group.
+    `anchors_xy` `(T, 2)` puts triangles in the cell of that point instead of their centroid's
+    (NaN rows: their centroid's)."""
     if not len(vertices):
         return vertices, DrawBatches.empty()
     triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
@@ -218,25 +242,27 @@ def in_draw_order(
     rank[in_order] = np.arange(len(in_order))
     # elementwise over the three corners: numpy's reductions over an axis of three are slow
     corner = [triangles[:, k, :3] for k in range(3)]
-    cell_key = np.zeros(len(triangles), np.int64)
-    if cells:
-        centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
-        cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
-        cell_key = cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0]
-        small = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 < MIN_SPLIT_VERTICES
-        cell_key[small[groups]] = 0
+    # cut into cells: with `cells`, every group large enough; always, the crowns (their level
+    # of detail is chosen by cell, on the GPU too: one look wherever it is drawn)
+    cut = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 >= MIN_SPLIT_VERTICES
+    if not cells:
+        cut &= np.isin(np.arange(len(cut)), (NEAR_FOLIAGE, FAR_FOLIAGE))
+    centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
+    if anchors_xy is not None:
+        centroid = np.where(np.isnan(anchors_xy), centroid, anchors_xy)
+    cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
+    cell_key = np.where(cut[groups], cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0], 0)
     key = rank[groups] * (4 * _CELL_OFFSET * _CELL_OFFSET) + cell_key
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     starts = np.flatnonzero(np.concatenate(([True], sorted_key[1:] != sorted_key[:-1])))
-    if cells:
-        lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
-        highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
-        low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
-        high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
-    else:  # no boxes: every batch may show anywhere
-        low = np.full((len(starts), 3), -np.inf)
-        high = np.full((len(starts), 3), np.inf)
+    lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
+    highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
+    low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
+    high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
+    if not cells:  # no boxes but the crowns': every other batch may show anywhere
+        unbounded = ~cut[groups[order][starts]]
+        low[unbounded], high[unbounded] = -np.inf, np.inf
     ordered = triangles[order]
     counts = np.diff(np.append(starts, len(order)))
     batches = DrawBatches(

@@ -31,11 +31,14 @@ from numpy.typing import NDArray
 
 from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
 from drivee2e_data.sim.gl_batches import (
+    DECALS,
+    NEAR_FOLIAGE,
     NOT_CASTING,
     SHADOW_ONLY,
     DrawBatches,
     group_defines,
     in_draw_order,
+    level_of_detail,
 )
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
@@ -44,6 +47,7 @@ from drivee2e_data.sim.gl_vertices import (
     VERTEX_INPUTS,
     _Body,
     model_vertices,
+    static_anchors,
     static_vertices,
 )
 from drivee2e_data.sim.models import Animation, ModelMesh, pose
@@ -245,6 +249,7 @@ class GLRenderer:
             # on the CPU); drawn whole otherwise
             self.cull = rasterises_on_cpu() if cull is None else cull
             self.static_vertices = static_vertices(static_meshes)
+            self.static_anchors = static_anchors(static_meshes)
             self.static_buffer = None
             self.static_light: tuple | None = None  # the sun the static batches were sorted by
             self.arrays: dict[tuple[str, object], object] = {}  # moderngl vertex arrays
@@ -316,7 +321,9 @@ class GLRenderer:
         light = tuple(float(v) for v in light_direction)
         if light == self.static_light:
             return
-        vertices, self.static_batches = in_draw_order(self.static_vertices, self.cull, light)
+        vertices, self.static_batches = in_draw_order(
+            self.static_vertices, self.cull, light, self.static_anchors
+        )
         with current(self.context):
             for key in [k for k in self.arrays if k[0] == "static"]:
                 self.arrays.pop(key).release()
@@ -495,15 +502,19 @@ class GLRenderer:
             visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
             yield buffer_name, batches, visible
 
-    def _draw_geometry(self, program_key: object, matrix: NDArray[np.float64]) -> None:
-        """Both buffers' batches that the view of `matrix` (world to clip space) may see: with
-        the labels program (`program_key` "labels") in as few draws as they allow, or with the
-        scene shader of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
+    def _draw_geometry(
+        self, program_key: object, matrix: NDArray[np.float64], eye_m: NDArray[np.float64]
+    ) -> None:
+        """Both buffers' batches that the view of `matrix` (world to clip space) from `eye_m`
+        may see, at their level of detail (`gl_batches.level_of_detail`): with the labels
+        program (`program_key` "labels") in as few draws as they allow, or with the scene shader
+        of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
         import moderngl
 
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
         for buffer_name, batches, visible in self._in_view(matrix):
+            visible = visible & level_of_detail(batches, eye_m)
             if not visible.any():
                 continue
             if buffer_name == "dynamic":
@@ -511,7 +522,8 @@ class GLRenderer:
             else:
                 self.context.enable(moderngl.CULL_FACE)
             labels = program_key == "labels"
-            draws = batches.runs(visible, by_group=not labels, skip=frozenset({SHADOW_ONLY}))
+            skip = frozenset({SHADOW_ONLY}) | (DECALS if labels else frozenset())
+            draws = batches.runs(visible, by_group=not labels, skip=skip)
             for group, first, vertices in draws:
                 key = "labels" if labels else group_defines(group, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
@@ -528,7 +540,8 @@ class GLRenderer:
         self.context.disable(moderngl.CULL_FACE)
         self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
         for buffer_name, batches, visible in self._in_view(matrix):
-            draws = batches.runs(visible, by_group=False, skip=NOT_CASTING)
+            # crowns cast from their coarse mesh
+            draws = batches.runs(visible, by_group=False, skip=NOT_CASTING | {NEAR_FOLIAGE})
             for _, first, vertices in draws:
                 self._array(buffer_name, "shadow").render(moderngl.TRIANGLES, vertices=vertices,
                                                           first=first)  # fmt: skip
@@ -580,7 +593,7 @@ class GLRenderer:
             if look == "labels":
                 self.context.enable(moderngl.DEPTH_TEST)
                 self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                self._draw_geometry("labels", matrix)
+                self._draw_geometry("labels", matrix, camera_position)
             else:
                 # shadows, night, wet and fog are compiled in: the variant the look needs
                 variant = scene_variant(shader_look)
@@ -599,7 +612,7 @@ class GLRenderer:
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
                 self.lamp_texture.use(location=2)
-                self._draw_geometry(variant, matrix)
+                self._draw_geometry(variant, matrix, camera_position)
                 # the sky last, on the far plane, where nothing was drawn: the depth test spares
                 # shading the sky behind the scene
                 self.context.disable(moderngl.CULL_FACE)
@@ -677,12 +690,21 @@ def _float_texture(context, values: NDArray[np.float32]):
 # uniforms in each of up to eight programs, and most (the clip's look) are the same at every
 # view. Programs live as long as the process (`_program`), whichever renderer sets them.
 _UNIFORMS: dict[tuple[int, str], object] = {}
+_MEMBERS: dict[int, frozenset[str]] = {}  # program -> its uniforms' names
+
+
+def _members(program) -> frozenset[str]:
+    """The names of a program's uniforms (asking the program iterates over all of them)."""
+    names = _MEMBERS.get(program.glo)
+    if names is None:
+        names = _MEMBERS[program.glo] = frozenset(program)
+    return names
 
 
 def _set(program, name: str, value) -> None:
     """A uniform's value, where the compiled program kept it (unused ones are dropped) and it
     changed."""
-    if name not in program:
+    if name not in _members(program):
         return
     if isinstance(value, np.ndarray):
         value = tuple(float(v) for v in value.ravel())
@@ -693,7 +715,7 @@ def _set(program, name: str, value) -> None:
 
 
 def _set_matrix(program, name: str, matrix: NDArray) -> None:
-    if name not in program:
+    if name not in _members(program):
         return
     data = np.asarray(matrix).T.astype(np.float32).tobytes()
     key = (program.glo, name)

@@ -164,6 +164,19 @@ def static_vertices(meshes: Sequence[TwinMesh]) -> NDArray[np.float32]:
     return np.concatenate(parts)
 
 
+def static_anchors(meshes: Sequence[TwinMesh]) -> NDArray[np.float64]:
+    """`(T, 2)` where each triangle of `static_vertices(meshes)` belongs on the ground
+    (`TwinMesh.anchors_xy`; NaN: its own centroid)."""
+    parts = [np.zeros((0, 2))]
+    for mesh in meshes:
+        triangles = len(np.asarray(mesh.indices).reshape(-1)) // 3
+        anchors = (
+            mesh.anchors_xy if mesh.anchors_xy is not None else np.full((triangles, 2), np.nan)
+        )
+        parts.append(np.asarray(anchors, np.float64).reshape(triangles, 2))
+    return np.concatenate(parts)
+
+
 Posed = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]
 
 

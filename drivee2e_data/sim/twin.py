@@ -65,6 +65,10 @@ FACADE_RGBAS = ((0.72, 0.68, 0.60, 1.0), (0.60, 0.42, 0.34, 1.0), (0.58, 0.58, 0
 WINDOW_RGBA = (0.12, 0.14, 0.17, 1.0)  # dark glass (a lit window by day looks the same)
 CROWN_RGBAS = ((0.20, 0.42, 0.16, 1.0), (0.26, 0.46, 0.18, 1.0), (0.16, 0.36, 0.17, 1.0))
 CROWN_CLUSTERS = 3  # spheres per crown, each 72 triangles: the old crown's 192 in all
+# each crown's spheres twice, (rings, segments): 72 triangles near the camera, 36 beyond
+# `gl_batches.FOLIAGE_DETAIL_M` for the GL renderer alone (crowns were the most triangles any
+# view drew, and llvmpipe pays for each small triangle's partly covered pixel blocks)
+CROWN_SPHERES = ((5, 8), (4, 6))
 STREET_LAMP_HEIGHT_M = 8.0
 STREET_LAMP_ARM_M = 1.6
 POLE_RGBA = (0.32, 0.33, 0.34, 1.0)
@@ -176,6 +180,9 @@ class TwinMesh:
     vertices: NDArray[np.float64]
     indices: NDArray[np.int64]
     normals: NDArray[np.float64] | None
+    # `(T, 2)` where each triangle belongs on the ground (NaN: its own centroid): a tree's
+    # triangles all at its trunk, so that the renderer's cells never split a tree
+    anchors_xy: NDArray[np.float64] | None = None
 
 
 @dataclass
@@ -188,12 +195,21 @@ class _Batch:
     vertices: list[NDArray[np.float64]] = field(default_factory=list)  # (V, 3) each
     indices: list[NDArray[np.int64]] = field(default_factory=list)  # (3T,) each
     normals: list[NDArray[np.float64] | None] = field(default_factory=list)  # (V, 3) or None
+    anchors: list[NDArray[np.float64]] = field(default_factory=list)  # (T, 2) each
     count: int = 0
 
-    def add(self, vertices: NDArray, indices: NDArray, normals: NDArray[np.float64] | None) -> None:
+    def add(
+        self,
+        vertices: NDArray,
+        indices: NDArray,
+        normals: NDArray[np.float64] | None,
+        anchor_xy: NDArray | None = None,
+    ) -> None:
         self.indices.append(np.asarray(indices, dtype=np.int64).reshape(-1) + self.count)
         self.vertices.append(np.asarray(vertices, dtype=np.float64).reshape(-1, 3))
         self.normals.append(normals)
+        anchor = np.full(2, np.nan) if anchor_xy is None else np.asarray(anchor_xy, np.float64)
+        self.anchors.append(np.tile(anchor, (len(self.indices[-1]) // 3, 1)))
         self.count += len(self.vertices[-1])
 
 
@@ -208,8 +224,9 @@ class TwinBuilder:
         self.twin = Twin(client)
         self.batches: dict[tuple[str, tuple, bool, Material], _Batch] = {}
         # triangles for the GL renderer alone, part of a batch's body (the key of the batch
-        # that hosts them), each by colour and material: the buildings' windows
-        self.glass: dict[tuple, dict[tuple[tuple, Material], _Batch]] = {}
+        # that hosts them), each by colour and material: the buildings' windows, the crowns'
+        # coarse spheres
+        self.gl_only: dict[tuple, dict[tuple[tuple, Material], _Batch]] = {}
 
     def _add(
         self,
@@ -220,13 +237,15 @@ class TwinBuilder:
         collide: bool = True,
         normals: NDArray[np.float64] | None = None,
         material: Material | None = None,
+        anchor_xy: NDArray | None = None,
     ) -> None:
         """Triangles (counter-clockwise seen from outside) for the batch of `kind`, `rgba` and
         `material` (by default the kind's, `KIND_MATERIAL`); `normals` per vertex for smooth
-        shading (else each triangle is flat)."""
+        shading (else each triangle is flat); `anchor_xy`, where on the ground they belong
+        (`TwinMesh.anchors_xy`)."""
         material = KIND_MATERIAL.get(kind, Material.MATTE) if material is None else material
         self.batches.setdefault((kind, tuple(rgba), collide, material), _Batch()).add(
-            vertices, indices, normals
+            vertices, indices, normals, anchor_xy
         )
 
     def _mesh(self, batch: _Batch, rgba: tuple, collide: bool) -> tuple[int, int]:
@@ -264,8 +283,8 @@ class TwinBuilder:
             )
             self.twin.bodies.append(body)
             self.twin.segmentation[body] = kind
-            for (glass_rgba, glass_material), glass in self.glass.pop(key, {}).items():
-                self.twin.meshes.append(_twin_mesh(body, kind, glass_rgba, glass_material, glass))
+            for (extra_rgba, extra_material), extra in self.gl_only.pop(key, {}).items():
+                self.twin.meshes.append(_twin_mesh(body, kind, extra_rgba, extra_material, extra))
             self.twin.meshes.append(_twin_mesh(body, kind, rgba, material, batch))
         self.batches = {}
 
@@ -280,8 +299,15 @@ class TwinBuilder:
                   for tone, lit in enumerate(LIT_WINDOW_RGBAS)]  # fmt: skip
         for glass_rgba, material, chosen in parts:
             if chosen.any():
-                batch = self.glass.setdefault(host, {}).setdefault((glass_rgba, material), _Batch())
-                batch.add(*windows.subset(chosen), None)
+                self._add_gl_only(host, glass_rgba, material, *windows.subset(chosen))
+
+    def _add_gl_only(self, host: tuple, rgba: tuple, material: Material, vertices: NDArray,
+                     indices: NDArray, normals: NDArray | None = None,
+                     anchor_xy: NDArray | None = None) -> None:  # fmt: skip
+        """Triangles the GL renderer draws as part of the body of batch `host`; pybullet never
+        sees them."""
+        batch = self.gl_only.setdefault(host, {}).setdefault((rgba, material), _Batch())
+        batch.add(vertices, indices, normals, anchor_xy)
 
     def _flat(self, geometry: shapely.Geometry, z_m: float, rgba: tuple, kind: str,
               material: Material | None = None) -> None:  # fmt: skip
@@ -368,12 +394,16 @@ class TwinBuilder:
             offset = (
                 0.38 * crown_m * np.array([np.cos(angle), np.sin(angle), rng.uniform(-0.4, 0.5)])
             )
-            vertices, indices, normals = sphere_mesh(
-                centre + offset, 0.68 * crown_m, rings=5, segments=8
-            )
             rgba = CROWN_RGBAS[int(rng.integers(len(CROWN_RGBAS)))]
+            near, far = (
+                sphere_mesh(centre + offset, 0.68 * crown_m, rings=rings, segments=segments)
+                for rings, segments in CROWN_SPHERES
+            )
+            vertices, indices, normals = near
             self._add("vegetation", rgba, vertices, indices, collide=False, normals=normals,
-                      material=Material.FOLIAGE)  # fmt: skip
+                      material=Material.FOLIAGE, anchor_xy=(x, y))  # fmt: skip
+            host = ("vegetation", tuple(rgba), False, Material.FOLIAGE)
+            self._add_gl_only(host, rgba, Material.FOLIAGE_FAR, *far, anchor_xy=(x, y))
 
     def _street_lamps(self, intersection_map: IntersectionMap, road: shapely.Geometry) -> None:
         """Lamp posts every `STREET_LAMP_SPACING_M` along the kerb (the sidewalks' road side, or
@@ -435,8 +465,10 @@ def _twin_mesh(body: int, kind: str, rgba: tuple, material: Material, batch: _Ba
     normals = None
     if all(n is not None for n in batch.normals):
         normals = np.concatenate(batch.normals)
+    anchors = np.concatenate(batch.anchors)
     return TwinMesh(body, kind, rgba, material, np.concatenate(batch.vertices),
-                    np.concatenate(batch.indices), normals)  # fmt: skip
+                    np.concatenate(batch.indices), normals,
+                    None if np.isnan(anchors).all() else anchors)  # fmt: skip
 
 
 def prism_mesh(

@@ -36,6 +36,7 @@ class Material(enum.IntEnum):
     STREET_LAMP = 11  # a street lamp's face: shines when the street lamps are on
     WINDOW = 12  # a building's window: dark glass, the sky and sun reflected
     WINDOW_LIT = 13  # the same by day; at night it shines its vertex colour (a lit room)
+    FOLIAGE_FAR = 14  # leaves as FOLIAGE, on a coarser crown drawn far from the camera
 
 
 class Light(enum.IntEnum):

@@ -31,6 +31,7 @@
 #define STREET_LAMP 11
 #define WINDOW 12
 #define WINDOW_LIT 13
+#define FOLIAGE_FAR 14
 #define WINDOW_GLASS vec3(0.12, 0.14, 0.17)  // a window by day, lit or not
 uniform vec3 sky_ambient;
 uniform vec3 ground_ambient;
@@ -109,7 +110,7 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
     }
 #endif
 #ifdef HAS_FOLIAGE
-    if (material == FOLIAGE) {
+    if (material == FOLIAGE || material == FOLIAGE_FAR) {
         vec2 q = world_position.xy * 2.2 + world_position.z * 1.7;
         return base * (0.6 + 0.7 * noise(q)) * (0.9 + 0.2 * hash(floor(q * 3.1)));
     }
