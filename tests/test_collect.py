@@ -317,3 +317,18 @@ def test_the_command_line_starts_without_torch():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_index_columns_are_made_from_buffers_with_the_values_given():
+    """`runner._arrow` builds the index's columns without `pa.array` (which imports pandas where
+    it is installed): strings (also non-ASCII and empty) and numbers read back as given."""
+    import pyarrow as pa
+
+    from drivee2e_data.collect.runner import _arrow
+
+    texts = ["synth_s0_c0001", "", "Straße", "rain"]
+    assert _arrow(texts, pa.string()).to_pylist() == texts
+    assert _arrow([3, -1, 7], pa.int8()).to_pylist() == [3, -1, 7]
+    assert _arrow([1786249534000000000, 5], pa.int64()).to_pylist() == [1786249534000000000, 5]
+    assert _arrow([0.25, -3.5], pa.float64()).to_pylist() == [0.25, -3.5]
+    assert _arrow([], pa.string()).to_pylist() == []

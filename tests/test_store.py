@@ -178,3 +178,26 @@ def test_written_files_and_bundles_take_the_umask(tmp_path: Path) -> None:
         os.umask(previous)
     assert stat.S_IMODE((tmp_path / "index.parquet").stat().st_mode) == 0o644
     assert stat.S_IMODE((tmp_path / "bundle").stat().st_mode) == 0o755
+
+
+def test_columns_read_from_their_buffers_match_pyarrows_own_conversion():
+    """`store._values` reads fixed-width and boolean columns from their buffers (pyarrow's
+    `to_numpy` imports pandas where it is installed): the same values, also for a column made of
+    several chunks and for a slice that starts inside a byte of booleans."""
+    import pyarrow as pa
+
+    from drivee2e_data.store import _values
+
+    flags = pa.chunked_array([[True, False, True], [False, False, True, True, False, True]])
+    for column, dtype in (
+        (flags, np.bool_),
+        (pa.chunked_array([pa.array([True, False, True, True, False, False, True]).slice(3)]),
+         np.bool_),
+        (pa.chunked_array([[1, 2, 3], [4]], pa.int64()), np.int64),
+        (pa.chunked_array([pa.array([0.5, -1.25, 3.0, 7.5], pa.float64()).slice(1, 2)]),
+         np.float64),
+        (pa.chunked_array([[0, 255, 3]], pa.uint8()), np.uint8),
+    ):  # fmt: skip
+        values = _values(column)
+        np.testing.assert_array_equal(values, np.asarray(column.to_pylist()))
+        assert values.dtype == dtype
