@@ -113,6 +113,18 @@ def test_runs_join_neighbours_and_short_gaps_but_never_span_a_skipped_group():
     assert batches.runs(hidden, by_group=False, skip=frozenset({2})) == [
         (0, 0, 600), (0, f[3], 600), (6, f[6], 300)
     ]  # fmt: skip
+    # a batch excluded (another level of detail's) is never drawn as part of a gap: 0 and 2,
+    # 300 vertices apart, are joined over the hidden 1 unless 1 is excluded
+    short = DrawBatches(
+        group, 300 * np.arange(7), np.full(7, 300), np.zeros((7, 3)), np.ones((7, 3))
+    )
+    g = [300 * k for k in range(7)]
+    gap = np.array([True, False, True, True, True, True, True])
+    assert short.runs(gap) == [(0, 0, 1200), (1, g[4], 300), (2, g[5], 300), (6, g[6], 300)]
+    excluded = np.array([False, True, False, False, False, False, False])
+    assert short.runs(gap, excluded=excluded) == [
+        (0, 0, 300), (0, g[2], 600), (1, g[4], 300), (2, g[5], 300), (6, g[6], 300)
+    ]  # fmt: skip
 
 
 @pytest.fixture(scope="module")

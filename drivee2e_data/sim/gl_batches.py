@@ -171,14 +171,21 @@ class DrawBatches:
         return ~outside
 
     def runs(
-        self, visible: NDArray[np.bool_], by_group: bool = True, skip: frozenset[int] = frozenset()
+        self,
+        visible: NDArray[np.bool_],
+        by_group: bool = True,
+        skip: frozenset[int] = frozenset(),
+        excluded: NDArray[np.bool_] | None = None,
     ) -> list[tuple[int, int, int]]:
         """The draws for the `visible` batches, as `(group, first vertex, vertex count)`:
         neighbouring visible batches joined (across groups too unless `by_group`: one program
         for all), and runs less than `MERGE_GAP_VERTICES` apart joined with what lies between;
-        batches of the groups in `skip` left out."""
+        batches of the groups in `skip`, and those `excluded` `(B,)` (another level of detail's),
+        left out and never drawn as part of a gap."""
         draws: list[tuple[int, int, int]] = []
         skipped = np.isin(self.group, list(skip))
+        if excluded is not None:
+            skipped |= excluded
         # skipped batches before each index: a draw never spans one, not even in a gap
         barriers = np.concatenate(([0], np.cumsum(skipped)))
         last = -1

@@ -514,7 +514,8 @@ class GLRenderer:
         # near things first, so that the depth test spares shading what they hide; actors are
         # drawn two-sided (their thin parts), the twin with back faces culled
         for buffer_name, batches, visible in self._in_view(matrix):
-            visible = visible & level_of_detail(batches, eye_m)
+            detail = level_of_detail(batches, eye_m)
+            visible = visible & detail
             if not visible.any():
                 continue
             if buffer_name == "dynamic":
@@ -523,7 +524,7 @@ class GLRenderer:
                 self.context.enable(moderngl.CULL_FACE)
             labels = program_key == "labels"
             skip = frozenset({SHADOW_ONLY}) | (DECALS if labels else frozenset())
-            draws = batches.runs(visible, by_group=not labels, skip=skip)
+            draws = batches.runs(visible, by_group=not labels, skip=skip, excluded=~detail)
             for group, first, vertices in draws:
                 key = "labels" if labels else group_defines(group, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
