@@ -49,7 +49,9 @@ def _group_of(material: Material) -> int:
 
 # Crowns are drawn from two meshes (`twin.CROWN_SPHERES`): the detailed one where a batch's box
 # comes within FOLIAGE_DETAIL_M of the eye, the coarse one beyond (a crown there spans under
-# 150 pixels of the front camera), and the coarse one into the sun's shadow map
+# 150 pixels of the front camera), and the coarse one into the sun's shadow map. Where the scene
+# is not cut into cells (a GPU, where small triangles cost next to nothing) every box is
+# unbounded, so every crown is drawn detailed.
 FOLIAGE_DETAIL_M = 40.0
 NEAR_FOLIAGE = _group_of(Material.FOLIAGE)
 FAR_FOLIAGE = _group_of(Material.FOLIAGE_FAR)
@@ -226,7 +228,7 @@ def in_draw_order(
     batches: by material group, the groups in the order of their first triangle (so what was
     drawn first mostly still is); with `cells`, inside a group of `MIN_SPLIT_VERTICES` or more,
     by the `CELL_M` cell of each triangle's centroid (row by row), each batch with its box;
-    otherwise in their order, the boxes unbounded (but the crowns', always in cells). With `light_direction` (towards the sun,
+    otherwise in their order, the boxes unbounded. With `light_direction` (towards the sun,
     world frame), wall and window triangles that face away from it go to their `AVERTED` group.
     `anchors_xy` `(T, 2)` puts triangles in the cell of that point instead of their centroid's
     (NaN rows: their centroid's)."""
@@ -249,27 +251,27 @@ def in_draw_order(
     rank[in_order] = np.arange(len(in_order))
     # elementwise over the three corners: numpy's reductions over an axis of three are slow
     corner = [triangles[:, k, :3] for k in range(3)]
-    # cut into cells: with `cells`, every group large enough; always, the crowns (their level
-    # of detail is chosen by cell, on the GPU too: one look wherever it is drawn)
-    cut = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 >= MIN_SPLIT_VERTICES
-    if not cells:
-        cut &= np.isin(np.arange(len(cut)), (NEAR_FOLIAGE, FAR_FOLIAGE))
-    centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
-    if anchors_xy is not None:
-        centroid = np.where(np.isnan(anchors_xy), centroid, anchors_xy)
-    cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
-    cell_key = np.where(cut[groups], cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0], 0)
+    cell_key = np.zeros(len(triangles), np.int64)
+    if cells:
+        centroid = (corner[0][:, :2] + corner[1][:, :2] + corner[2][:, :2]) / 3.0
+        if anchors_xy is not None:
+            centroid = np.where(np.isnan(anchors_xy), centroid, anchors_xy)
+        cell = np.floor(centroid / CELL_M).astype(np.int64) + _CELL_OFFSET
+        cell_key = cell[:, 1] * (2 * _CELL_OFFSET) + cell[:, 0]
+        small = np.bincount(groups, minlength=len(MATERIAL_GROUPS) + 1) * 3 < MIN_SPLIT_VERTICES
+        cell_key[small[groups]] = 0
     key = rank[groups] * (4 * _CELL_OFFSET * _CELL_OFFSET) + cell_key
     order = np.argsort(key, kind="stable")
     sorted_key = key[order]
     starts = np.flatnonzero(np.concatenate(([True], sorted_key[1:] != sorted_key[:-1])))
-    lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
-    highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
-    low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
-    high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
-    if not cells:  # no boxes but the crowns': every other batch may show anywhere
-        unbounded = ~cut[groups[order][starts]]
-        low[unbounded], high[unbounded] = -np.inf, np.inf
+    if cells:
+        lowest = np.minimum(np.minimum(corner[0], corner[1]), corner[2])[order]
+        highest = np.maximum(np.maximum(corner[0], corner[1]), corner[2])[order]
+        low = np.minimum.reduceat(lowest, starts, axis=0).astype(np.float64)
+        high = np.maximum.reduceat(highest, starts, axis=0).astype(np.float64)
+    else:  # no boxes: every batch may show anywhere (and every crown is near: detailed)
+        low = np.full((len(starts), 3), -np.inf)
+        high = np.full((len(starts), 3), np.inf)
     ordered = triangles[order]
     counts = np.diff(np.append(starts, len(order)))
     batches = DrawBatches(

@@ -318,11 +318,12 @@ class GLRenderer:
         self._sort_static(look.light_direction)
 
     def _sort_static(self, light_direction: tuple[float, float, float]) -> None:
-        """The twin's triangles into the static buffer in draw order, the walls and windows that
-        face away from the sun of `light_direction` in groups of their own (`gl_batches.AVERTED`);
-        again only when the sun moved (a world's next clip of the same map)."""
-        light = tuple(float(v) for v in light_direction)
-        if light == self.static_light:
+        """The twin's triangles into the static buffer in draw order; where the scene is cut into
+        cells (llvmpipe), the walls and windows that face away from the sun of `light_direction`
+        in groups of their own (`gl_batches.AVERTED`: they save its shadow lookups; on a GPU
+        they would only add draws), sorted again when the sun moves (a world's next clip)."""
+        light = tuple(float(v) for v in light_direction) if self.cull else None
+        if light == self.static_light and self.static_buffer is not None:
             return
         vertices, self.static_batches = in_draw_order(
             self.static_vertices, self.cull, light, self.static_anchors
