@@ -11,6 +11,7 @@ a pole (with a mast arm where the head hangs over the road) with one head whose 
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import shutil
@@ -500,6 +501,14 @@ def sphere_mesh(
     centre: NDArray, radius_m: float, rings: int = 8, segments: int = 12
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
     """A UV sphere: vertices `(V, 3)`, outward triangles `(3T,)` and unit normals `(V, 3)`."""
+    normals, indices = _unit_sphere(rings, segments)
+    return np.asarray(centre, dtype=np.float64) + radius_m * normals, indices, normals
+
+
+@functools.cache
+def _unit_sphere(rings: int, segments: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The unit sphere's normals (its vertices) and triangles (made once: a twin has hundreds
+    of crown and lamp spheres of a few sizes)."""
     polar = np.linspace(0.0, np.pi, rings + 1)
     azimuth = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     polar_grid, azimuth_grid = np.meshgrid(polar, azimuth, indexing="ij")
@@ -521,7 +530,10 @@ def sphere_mesh(
                 indices += [a, c, b]  # (a: upper, c: lower) going east: outward
             if ring < rings - 1:
                 indices += [b, c, d]
-    return np.asarray(centre, dtype=np.float64) + radius_m * normals, np.asarray(indices), normals
+    normals.flags.writeable = False
+    index_array = np.asarray(indices)
+    index_array.flags.writeable = False
+    return normals, index_array
 
 
 def paint_geometry(line: NDArray, mark: LaneMark) -> shapely.Geometry:
