@@ -356,10 +356,11 @@ class GLRenderer:
             "fog_rgb": look.fog_rgb, "fog_density": look.fog_density, "wetness": look.wetness,
             "lamp_rgb": look.lamp_rgb, "spot_rgb": look.spot_rgb,
             "spot_reach_m": look.spot_reach_m, "far_m": far_m,
-            "camera_position": tuple(float(v) for v in camera_position),
         }  # fmt: skip
+        camera = tuple(float(v) for v in camera_position)
         for name, value in values.items():
             _set(self.sky_program, name, value)
+        _set(self.sky_program, "camera_position", camera)
         if look.lamps_on:
             raster = self._lamp_raster()
             extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
@@ -372,9 +373,16 @@ class GLRenderer:
         else:
             values["wear_extent"] = (1.0, 1.0)
         values.update(shadow_map=0, wear_map=1, lamp_map=2)
+        # the look's uniforms are the same at every view of a frame: set them into a program
+        # only when they differ from what it was last given as a whole (`_set` would find each
+        # unchanged, but thirty calls a program, a dozen programs a view, cost a millisecond)
+        key = tuple(values.items())
         for program in programs:
-            for name, value in values.items():
-                _set(program, name, value)
+            if _LOOKS.get(program.glo) != key:
+                for name, value in values.items():
+                    _set(program, name, value)
+                _LOOKS[program.glo] = key
+            _set(program, "camera_position", camera)
             for name, matrix in matrices.items():
                 _set_matrix(program, name, matrix)
 
@@ -696,6 +704,7 @@ def _float_texture(context, values: NDArray[np.float32]):
 # view. Programs live as long as the process (`_program`), whichever renderer sets them.
 _UNIFORMS: dict[tuple[int, str], object] = {}
 _MEMBERS: dict[int, frozenset[str]] = {}  # program -> its uniforms' names
+_LOOKS: dict[int, tuple] = {}  # program -> the look's uniforms last set into it, as a whole
 
 
 def _members(program) -> frozenset[str]:
