@@ -238,8 +238,8 @@ def in_draw_order(
     codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
     groups = _GROUP_OF[codes]
     if light_direction is not None:
-        # flat walls: the first corner's normal is the triangle's; the sun's term is
-        # max(n . l, 0) in the shader, zero on all three corners of an averted triangle
+        # the shader's sun term is max(n . l, 0): zero across a triangle whose three corners'
+        # normals all face away from the sun
         normals = triangles[:, :, 3:6].astype(np.float64)
         averted = np.all(normals @ np.asarray(light_direction, np.float64) <= 0.0, axis=1)
         for facing, away in AVERTED.items():

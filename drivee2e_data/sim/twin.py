@@ -25,7 +25,7 @@ import shapely
 import shapely.ops
 from numpy.typing import NDArray
 
-from drivee2e_data.hdmap import IntersectionMap, LaneMark, MarkColour, MarkPattern
+from drivee2e_data.hdmap import Building, IntersectionMap, LaneMark, MarkColour, MarkPattern
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.models.mesh import Material, box_mesh
 from drivee2e_data.sim.obj_text import obj_text
@@ -289,7 +289,7 @@ class TwinBuilder:
             self.twin.meshes.append(_twin_mesh(body, kind, rgba, material, batch))
         self.batches = {}
 
-    def _windows(self, building, rgba: tuple) -> None:
+    def _windows(self, building: Building, rgba: tuple) -> None:
         """A building's windows (`scenery.facade_windows`), hosted by its walls' batch: dark
         ones in one batch, the ones lit at night in one a tone."""
         windows = facade_windows(building.footprint_m, building.height_m,
