@@ -306,16 +306,18 @@ def _signals_table(scenario: Scenario) -> pa.Table:
     )
 
 
-# numpy's dtype for each fixed-width Arrow type the bundles hold
-_NUMPY_TYPES = {pa.int64(): np.int64, pa.float64(): np.float64, pa.uint8(): np.uint8}
+# numpy's dtype for each fixed-width Arrow type this project writes (bundles, the logs index).
+# Columns are converted through their buffers in both directions: pyarrow's own conversions
+# (`to_numpy`, `to_pydict`, `pa.array`, `pa.table`) import pandas wherever it is installed,
+# 0.4-0.6 s of every collector worker's first world on an H100 host (16 at once).
+_NUMPY_TYPES = {pa.int8(): np.int8, pa.int32(): np.int32, pa.int64(): np.int64,
+                pa.uint8(): np.uint8, pa.float64(): np.float64}  # fmt: skip
 
 
-def _values(column: pa.ChunkedArray) -> NDArray:
-    """A fixed-width or boolean column without nulls as a numpy array, read from its buffers:
-    pyarrow's own `to_numpy` imports pandas wherever it is installed, 0.4-0.6 s of every
-    collector worker's first world on an H100 host (16 at once)."""
+def column_values(column: pa.ChunkedArray) -> NDArray:
+    """A fixed-width or boolean column without nulls as a numpy array, read from its buffers."""
     array = column.combine_chunks()
-    if array.null_count:  # not in bundles this module writes: pyarrow's conversion
+    if array.null_count:  # not in files this project writes: pyarrow's conversion
         return array.to_numpy(zero_copy_only=False)
     data = array.buffers()[1]
     if pa.types.is_boolean(array.type):
@@ -323,6 +325,19 @@ def _values(column: pa.ChunkedArray) -> NDArray:
         return bits[array.offset : array.offset + len(array)].astype(bool)
     values = np.frombuffer(data, _NUMPY_TYPES[array.type])
     return values[array.offset : array.offset + len(array)].copy()
+
+
+def arrow_column(values: list, arrow_type: pa.DataType) -> pa.Array:
+    """Python values (strings, or numbers of a fixed-width type) as an Arrow array made from its
+    buffers."""
+    if pa.types.is_string(arrow_type):
+        encoded = [str(value).encode() for value in values]
+        offsets = np.zeros(len(encoded) + 1, np.int32)
+        np.cumsum([len(text) for text in encoded], out=offsets[1:])
+        data = pa.py_buffer(b"".join(encoded))
+        return pa.Array.from_buffers(arrow_type, len(encoded), [None, pa.py_buffer(offsets), data])
+    numbers = np.asarray(values, dtype=_NUMPY_TYPES[arrow_type])
+    return pa.Array.from_buffers(arrow_type, len(numbers), [None, pa.py_buffer(numbers)])
 
 
 def _read_table(path: Path, schema: pa.Schema) -> pa.Table:
@@ -364,9 +379,9 @@ def _read_tracks(
     table = _read_table(path, _TRACK_SCHEMA)
     track_ids = np.asarray(table.column("track_id").to_pylist(), dtype=object)
     classes = table.column("class").to_pylist()
-    t_ns = _values(table.column("t_ns"))
-    valid = _values(table.column("valid"))
-    values = {name: _values(table.column(name)) for name in _FLOAT_COLUMNS}
+    t_ns = column_values(table.column("t_ns"))
+    valid = column_values(table.column("valid"))
+    values = {name: column_values(table.column(name)) for name in _FLOAT_COLUMNS}
     frames = _frame_index(path, t_ns, t0_ns, num_frames)
     known_classes = {c.value for c in AgentClass}
     for name in _FLOAT_COLUMNS:
@@ -436,8 +451,8 @@ def _read_signals(
 ) -> list[SignalTimeline]:
     table = _read_table(path, _SIGNAL_SCHEMA)
     signal_ids = np.asarray(table.column("signal_id").to_pylist(), dtype=object)
-    frames = _frame_index(path, _values(table.column("t_ns")), t0_ns, num_frames)
-    states = _values(table.column("state"))
+    frames = _frame_index(path, column_values(table.column("t_ns")), t0_ns, num_frames)
+    states = column_values(table.column("state"))
     signals = []
     for signal_id in dict.fromkeys(signal_ids.tolist()):
         rows = np.flatnonzero(signal_ids == signal_id)

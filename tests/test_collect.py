@@ -320,15 +320,18 @@ def test_the_command_line_starts_without_torch():
 
 
 def test_index_columns_are_made_from_buffers_with_the_values_given():
-    """`runner._arrow` builds the index's columns without `pa.array` (which imports pandas where
+    """`store.arrow_column` builds the index's columns without `pa.array` (which imports pandas where
     it is installed): strings (also non-ASCII and empty) and numbers read back as given."""
     import pyarrow as pa
 
-    from drivee2e_data.collect.runner import _arrow
+    from drivee2e_data.store import arrow_column
 
     texts = ["synth_s0_c0001", "", "Straße", "rain"]
-    assert _arrow(texts, pa.string()).to_pylist() == texts
-    assert _arrow([3, -1, 7], pa.int8()).to_pylist() == [3, -1, 7]
-    assert _arrow([1786249534000000000, 5], pa.int64()).to_pylist() == [1786249534000000000, 5]
-    assert _arrow([0.25, -3.5], pa.float64()).to_pylist() == [0.25, -3.5]
-    assert _arrow([], pa.string()).to_pylist() == []
+    assert arrow_column(texts, pa.string()).to_pylist() == texts
+    assert arrow_column([3, -1, 7], pa.int8()).to_pylist() == [3, -1, 7]
+    assert arrow_column([1786249534000000000, 5], pa.int64()).to_pylist() == [
+        1786249534000000000,
+        5,
+    ]
+    assert arrow_column([0.25, -3.5], pa.float64()).to_pylist() == [0.25, -3.5]
+    assert arrow_column([], pa.string()).to_pylist() == []

@@ -181,12 +181,12 @@ def test_written_files_and_bundles_take_the_umask(tmp_path: Path) -> None:
 
 
 def test_columns_read_from_their_buffers_match_pyarrows_own_conversion():
-    """`store._values` reads fixed-width and boolean columns from their buffers (pyarrow's
+    """`store.column_values` reads fixed-width and boolean columns from their buffers (pyarrow's
     `to_numpy` imports pandas where it is installed): the same values, also for a column made of
     several chunks and for a slice that starts inside a byte of booleans."""
     import pyarrow as pa
 
-    from drivee2e_data.store import _values
+    from drivee2e_data.store import column_values
 
     flags = pa.chunked_array([[True, False, True], [False, False, True, True, False, True]])
     for column, dtype in (
@@ -198,6 +198,6 @@ def test_columns_read_from_their_buffers_match_pyarrows_own_conversion():
          np.float64),
         (pa.chunked_array([[0, 255, 3]], pa.uint8()), np.uint8),
     ):  # fmt: skip
-        values = _values(column)
+        values = column_values(column)
         np.testing.assert_array_equal(values, np.asarray(column.to_pylist()))
         assert values.dtype == dtype
