@@ -57,6 +57,14 @@ LOG = logging.getLogger(__name__)
 SHADER_DIR = Path(__file__).with_name("shaders")
 CLEAR_RGB = (0.70, 0.78, 0.90)  # background of a view without a sky (labels)
 LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's daylight; ids only
+# the colour attachments each look's shaders write, in the order of their output locations
+# (scene.frag and sky.frag: colour, depth, body id; labels.frag: depth, body id); a view whose
+# ids are not read gets the first two alone
+FRAMEBUFFER_OUTPUTS = {
+    "camera": ("rgba", "depth", "body"),
+    "plain": ("rgba", "depth", "body"),
+    "labels": ("depth", "body"),
+}
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
 # shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
 SHADOW_MAP_PX = 2048
@@ -282,7 +290,7 @@ class GLRenderer:
         self.synced: object = None
         self.shadowed: object = None
         self.lights = SceneLights()
-        self.framebuffers: dict[tuple[int, int], moderngl.Framebuffer] = {}
+        self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -491,19 +499,23 @@ class GLRenderer:
         self.placed[body] = ((position, orientation, animation), vertices)
         return vertices
 
-    def _framebuffer(self, width: int, height: int):
-        framebuffer = self.framebuffers.get((width, height))
+    def _framebuffer(self, width: int, height: int, outputs: tuple[str, ...]):
+        """A framebuffer of `width` x `height` with one colour attachment per name in `outputs`
+        (`FRAMEBUFFER_OUTPUTS`, in the order of the shaders' output locations) and a depth
+        buffer; made once per size and kind."""
+        framebuffer = self.framebuffers.get((width, height, outputs))
         if framebuffer is None:
             context = self.context
             framebuffer = context.framebuffer(
                 color_attachments=[
-                    context.renderbuffer((width, height), components=4),
-                    context.renderbuffer((width, height), components=1, dtype="f4"),
-                    context.renderbuffer((width, height), components=1, dtype="f4"),
+                    context.renderbuffer((width, height), components=4)
+                    if name == "rgba"
+                    else context.renderbuffer((width, height), components=1, dtype="f4")
+                    for name in outputs
                 ],
                 depth_attachment=context.depth_renderbuffer((width, height)),
             )
-            self.framebuffers[(width, height)] = framebuffer
+            self.framebuffers[(width, height, outputs)] = framebuffer
         return framebuffer
 
     def _in_view(self, matrix: NDArray[np.float64]) -> Iterator[tuple[str, DrawBatches, NDArray]]:
@@ -596,12 +608,16 @@ class GLRenderer:
             if shadows and self.shadowed != key:
                 self._shadow_pass(sun_matrix)
                 self.shadowed = key
-            framebuffer = self._framebuffer(width, height)
+            # what a view writes: a camera's ids only when they are read (an attachment fewer
+            # saved llvmpipe 8 ms of six cameras), a labels view no colour
+            outputs = FRAMEBUFFER_OUTPUTS[look] if segmentation else FRAMEBUFFER_OUTPUTS[look][:2]
+            framebuffer = self._framebuffer(width, height, outputs)
             framebuffer.use()
-            for attachment, value in enumerate(((*CLEAR_RGB, 1.0), (0.0,) * 4, (far_m,) * 4)):
-                framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(3))
-                framebuffer.clear(*value, depth=1.0)
-            framebuffer.color_mask = ((True,) * 4,) * 3
+            clear = {"rgba": (*CLEAR_RGB, 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
+            for attachment, name in enumerate(outputs):
+                framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(len(outputs)))
+                framebuffer.clear(*clear[name], depth=1.0)
+            framebuffer.color_mask = ((True,) * 4,) * len(outputs)
             self.context.front_face = "cw"
             if look == "labels":
                 self.context.enable(moderngl.DEPTH_TEST)
@@ -635,15 +651,20 @@ class GLRenderer:
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
             # it (RGBA) and its alpha dropped by OpenCV: asking GL for RGB makes the driver
             # convert on the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
-            rgba = np.empty((height, width, 4), np.uint8)
-            framebuffer.read_into(rgba, components=4, attachment=0)
-            rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
+            if "rgba" in outputs:
+                rgba = np.empty((height, width, 4), np.uint8)
+                framebuffer.read_into(rgba, components=4, attachment=0)
+                rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
+            else:
+                rgb = np.zeros((height, width, 3), np.uint8)
             depth_m = np.empty((height, width), np.float32)
-            framebuffer.read_into(depth_m, components=1, attachment=2, dtype="f4")
+            framebuffer.read_into(depth_m, components=1, attachment=outputs.index("depth"),
+                                  dtype="f4")  # fmt: skip
             body = None
             if segmentation:
                 ids = np.empty((height, width), np.float32)
-                framebuffer.read_into(ids, components=1, attachment=1, dtype="f4")
+                framebuffer.read_into(ids, components=1, attachment=outputs.index("body"),
+                                      dtype="f4")  # fmt: skip
                 body = ids.astype(np.int32)
                 body -= 1
         return rgb, depth_m, body

@@ -57,8 +57,8 @@ flat in float body;
 flat in float emission;
 flat in int material;
 layout(location = 0) out vec4 rgba;
-layout(location = 1) out float body_out;
-layout(location = 2) out float depth_out;
+layout(location = 1) out float depth_out;
+layout(location = 2) out float body_out;  // where the view reads ids
 
 float sunlit() {
 #if defined(SUN_AVERTED)
