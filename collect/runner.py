@@ -43,7 +43,13 @@ from drivee2e_data.collect.segments import Job, WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.logs.writer import PARTIAL_SUFFIX
-from drivee2e_data.processes import SPAWN, WORKER_THREADS, clean_up_when_stopped, worker_pool
+from drivee2e_data.processes import (
+    SPAWN,
+    WORKER_THREADS,
+    clean_up_when_stopped,
+    preloading,
+    worker_pool,
+)
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sim import egl_devices
 
@@ -55,6 +61,9 @@ MERGE_THREADS = 2
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
+# what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
+# this module (and with it the collector's), and what a world imports when it is set up
+WORKER_MODULES = ("drivee2e_data.collect.runner", "pybullet", "moderngl", "glcontext.egl")
 # what setting up a clip's world costs a worker taking part of a running unit, in sensor frames
 # of work (a sensor frame and the state frames up to the next: 0.32-0.36 s on a loaded H100
 # host), its first frame's extra cost in the new world (0.2-0.3 s) included: a world on another
@@ -424,8 +433,8 @@ class _Claims:
     before capturing it (`claim`), and the parent moves a running unit's stop back to hand the
     rest to an idle worker (`split`), under one lock, so no frame is captured twice or never."""
 
-    def __init__(self, slots: int) -> None:
-        self.shared = SPAWN.Array("q", 2 * slots)
+    def __init__(self, slots: int, context: multiprocessing.context.BaseContext = SPAWN) -> None:
+        self.shared = context.Array("q", 2 * slots)
         self.used = 0
 
     @property
@@ -521,12 +530,14 @@ def _run_pool(
     process: writing a log from segments is a copy of their chunks, so it takes no worker and
     the logs get written while the collection goes on; the thread makes the log's index rows
     too. `then` runs after the last job, while the workers exit."""
-    frames_done = SPAWN.Queue()
-    started = SPAWN.Value("i", 0)
+    context = preloading(WORKER_MODULES)
+    frames_done = context.Queue()
+    started = context.Value("i", 0)
     units = sum(len(job) for job in jobs)
-    claims = _Claims(units + SPLITS_PER_WORKER * workers)
+    claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
+    initargs = (frames_done, started, gpus, claims.shared)
     with (
-        worker_pool(workers, _init_worker, (frames_done, started, gpus, claims.shared)) as pool,
+        worker_pool(workers, _init_worker, initargs, context) as pool,
         ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
     ):
         waiting = collections.deque(jobs)

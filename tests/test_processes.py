@@ -45,3 +45,39 @@ def test_a_setting_of_the_users_own_is_kept(monkeypatch):
         assert os.environ["LP_NUM_THREADS"] == "1"
     assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
     assert "LP_NUM_THREADS" not in os.environ
+
+
+# a parent that starts a preloading pool and asks its worker what it had imported before the
+# task ran, and which OpenBLAS setting it got; then reports its own setting
+PRELOADING_PARENT = """
+import os, sys
+from drivee2e_data.processes import preloading, worker_pool
+
+def report():
+    return "colorsys" in sys.modules, os.getenv("OPENBLAS_NUM_THREADS")
+
+def nothing():
+    pass
+
+if __name__ == "__main__":
+    context = preloading(["colorsys"])
+    with worker_pool(2, nothing, (), context) as pool:
+        first = pool.submit(report).result()
+    print(context.get_start_method(), first[0], first[1], os.getenv("OPENBLAS_NUM_THREADS"),
+          "colorsys" in sys.modules)
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the forkserver start method is Linux's here")
+def test_a_preloading_pool_forks_workers_that_imported_the_modules_in_one_thread(
+    tmp_path, monkeypatch
+):
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    script = tmp_path / "parent.py"
+    script.write_text(PRELOADING_PARENT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          check=True, cwd=tmp_path)  # fmt: skip
+    method, preloaded, worker_setting, parent_setting, parent_imported = done.stdout.split()
+    # the worker had the module before its task ran; the parent never imported it
+    assert (method, preloaded, parent_imported) == ("forkserver", "True", "False")
+    assert (worker_setting, parent_setting) == ("1", "None")
