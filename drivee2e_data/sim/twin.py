@@ -50,6 +50,9 @@ TRUNK_SIDES = 8
 PAINT_KINDS = ("road_mark", "crosswalk", "stop_line")
 PAINT_RASTER_M = 0.05  # cell size of the paint raster (lines are 0.15 m wide)
 GROUND_MARGIN_M = 150.0  # the ground reaches this far beyond the road's bounding box
+# ...and this far in under the road's and the sidewalks' edges, so that no view low over the
+# grass sees past an edge into a gap (10 cm of drop over 2 m: a ray under 3 degrees)
+GROUND_UNDER_M = 2.0
 LAMP_ON = {
     SignalState.RED: (1.0, 0.05, 0.05, 1.0),
     SignalState.YELLOW: (1.0, 0.8, 0.0, 1.0),
@@ -339,9 +342,11 @@ class TwinBuilder:
     def build(self, intersection_map: IntersectionMap) -> Twin:
         m = intersection_map
         road = m.drivable_union()
-        self._flat(
-            road.envelope.buffer(GROUND_MARGIN_M, join_style="mitre"), -0.1, GROUND_RGBA, "ground"
-        )
+        # the grass stops under the road and the sidewalks, which cover it: a plane under the
+        # whole scene cost llvmpipe its rasterising and depth test over every road pixel
+        covered = shapely.union_all([road, *(shapely.Polygon(a.polygon_m) for a in m.sidewalks)])
+        ground = road.envelope.buffer(GROUND_MARGIN_M, join_style="mitre")
+        self._flat(ground.difference(covered.buffer(-GROUND_UNDER_M)), -0.1, GROUND_RGBA, "ground")
         self._flat(road, 0.0, ROAD_RGBA, "road")
         for area in m.sidewalks:
             self._prism(area.polygon_m, -0.05, area.kerb_height_m, SIDEWALK_RGBA, "sidewalk")
