@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from drivee2e_data.sim import gl_renderer
 from drivee2e_data.sim.conditions import ShaderLook
 from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
 from drivee2e_data.sim.gl_vertices import read_obj
@@ -227,6 +228,40 @@ def test_a_frames_cameras_and_top_view_share_one_shadow_map(site, monkeypatch):
         fresh = above()
         assert len(passes) == 2
     assert np.array_equal(shared, fresh)
+
+
+def shadow_map(world: World) -> bytes:
+    """The sun's shadow map as the GL world holds it (read with its context current: another
+    library's may be current between draws)."""
+    with gl_renderer.current(world.gl.context):
+        return world.gl.shadow_texture.read()
+
+
+def test_the_shadow_map_from_the_static_casters_copy_is_the_one_drawn_afresh(site, monkeypatch):
+    """The static casters are drawn once for a sun matrix (the focus rounded to its grid) and
+    copied each frame before the moving casters: after the traffic moved, the map is the one a
+    pass drawing every caster into a cleared map gives, and differs from the frame before."""
+    if gl_renderer._depth_copy() is None:
+        pytest.skip("no glBlitFramebuffer through EGL here")
+    intersection_map, scenario = site
+    cast = []
+    original = GLRenderer._cast
+    monkeypatch.setattr(GLRenderer, "_cast", lambda self, framebuffer, matrix, buffers, clear=True:
+                        (cast.append(buffers), original(self, framebuffer, matrix, buffers, clear)))  # fmt: skip
+    with World(intersection_map, scenario, renderer="gl") as world:
+        world.gl.set_look(_low_sun_behind(world, 20))
+        _front(world, 20, segmentation=False)
+        before = shadow_map(world)
+        _front(world, 21, segmentation=False)  # the ego moved 1 m or less: the same grid point
+        copied = shadow_map(world)
+        assert cast == [("static",), ("dynamic",), ("dynamic",)]
+        monkeypatch.setattr(gl_renderer, "_depth_copy", lambda: None)
+        world.gl.shadowed = None
+        _front(world, 21, segmentation=False)
+        afresh = shadow_map(world)
+        assert cast[-1] == ("dynamic", "static")
+    assert copied == afresh
+    assert copied != before
 
 
 def test_the_ego_casts_its_shadow_into_its_own_front_camera(site):

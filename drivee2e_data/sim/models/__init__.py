@@ -20,8 +20,10 @@ __all__ = ["LOOK_VERSION", "Animation", "Light", "Material", "ModelMesh", "agent
 # renderer's shading of the same boxes; 3: procedural models, materials, shadows, sky; 4: the
 # ego casts its shadow into its own cameras' view (`SceneLights.casters`); 5: windows as quads
 # of their own in whole bays centred on each wall, walls without the window grid's tone, crowns
-# drawn coarser beyond 40 m where the CPU draws (`twin.CROWN_SPHERES`).
-LOOK_VERSION = 5
+# drawn coarser beyond 40 m where the CPU draws (`twin.CROWN_SPHERES`); 6: the sun's shadow map
+# centred on the ego's position rounded to 8 m (`gl_renderer.SHADOW_FOCUS_STEP_M`: shadow
+# edges sampled at another phase, the map's faded border elsewhere), no grass under the road.
+LOOK_VERSION = 6
 STATURE_RANGE_M = (1.52, 1.70)  # pedestrians' heights, inside the 1.72 m blueprint box
 BUILD_RANGE = (0.85, 1.15)
 
