@@ -48,6 +48,7 @@ from drivee2e_data.processes import (
     WORKER_THREADS,
     clean_up_when_stopped,
     preloading,
+    start_server,
     worker_pool,
 )
 from drivee2e_data.sensors.ego_state import ego_motion
@@ -306,6 +307,8 @@ def collect(
     logs = root / LOGS_FOLDER
     summary = CollectSummary(started=time.time())
     start = time.perf_counter()
+    if backend == "local" and workers > 1:  # its imports overlap the planning below
+        start_server(preloading(WORKER_MODULES))
     with _run_lock(logs):
         for stale in logs.glob(f".*{PARTIAL_SUFFIX}"):
             stale.unlink()  # a crashed run's unfinished log; its clip is redone

@@ -55,6 +55,18 @@ def preloading(modules: Sequence[str]) -> multiprocessing.context.BaseContext:
     return context
 
 
+def start_server(context: multiprocessing.context.BaseContext) -> None:
+    """Start `preloading`'s server now, where `context` has one (with `one_thread_per_worker`'s
+    environment), so that it imports while the parent still plans: its first pool's workers
+    then fork from a server that is ready, or nearly."""
+    if context.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+
+    with one_thread_per_worker():
+        forkserver.ensure_running()
+
+
 @contextmanager
 def worker_pool(
     workers: int,

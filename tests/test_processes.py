@@ -51,7 +51,8 @@ def test_a_setting_of_the_users_own_is_kept(monkeypatch):
 # task ran, and which OpenBLAS setting it got; then reports its own setting
 PRELOADING_PARENT = """
 import os, sys
-from drivee2e_data.processes import preloading, worker_pool
+from multiprocessing import forkserver
+from drivee2e_data.processes import preloading, start_server, worker_pool
 
 def report():
     return "colorsys" in sys.modules, os.getenv("OPENBLAS_NUM_THREADS")
@@ -61,10 +62,12 @@ def nothing():
 
 if __name__ == "__main__":
     context = preloading(["colorsys"])
+    start_server(context)  # started before any pool, and the pool's workers fork from it
+    server = forkserver._forkserver._forkserver_pid
     with worker_pool(2, nothing, (), context) as pool:
         first = pool.submit(report).result()
     print(context.get_start_method(), first[0], first[1], os.getenv("OPENBLAS_NUM_THREADS"),
-          "colorsys" in sys.modules)
+          "colorsys" in sys.modules, server is not None, server == forkserver._forkserver._forkserver_pid)
 """
 
 
@@ -77,7 +80,10 @@ def test_a_preloading_pool_forks_workers_that_imported_the_modules_in_one_thread
     script.write_text(PRELOADING_PARENT)
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                           check=True, cwd=tmp_path)  # fmt: skip
-    method, preloaded, worker_setting, parent_setting, parent_imported = done.stdout.split()
+    method, preloaded, worker_setting, parent_setting, parent_imported, *server = (
+        done.stdout.split()
+    )
     # the worker had the module before its task ran; the parent never imported it
     assert (method, preloaded, parent_imported) == ("forkserver", "True", "False")
     assert (worker_setting, parent_setting) == ("1", "None")
+    assert server == ["True", "True"]  # started early, and the one the pool used
