@@ -67,11 +67,13 @@ SPLITS_PER_WORKER = 4
 WORKER_MODULES = ("drivee2e_data.collect.runner", "pybullet", "moderngl", "glcontext.egl")
 # what setting up a clip's world costs a worker taking part of a running unit, in sensor frames
 # of work (a sensor frame and the state frames up to the next: 0.32-0.36 s on a loaded H100
-# host), its first frame's extra cost in the new world (0.2-0.3 s) included: a world on another
-# map, its twin built, 1.1-1.2 s; on the map the worker's world shows, only the actors replaced,
-# 0.36-0.44 s (`scripts/bench_collect.py --sensor-hz 2`, docs/benchmarks.md)
-SETUP_FRAMES = 5
-REPLAY_SETUP_FRAMES = 2
+# host), its first frames' extra cost in the new world included: a world on another map, its
+# twin built, 1.3-1.6 s; on the map the worker's world shows, only the actors replaced,
+# 0.4-0.7 s; and about 0.7 s more than that before the new world runs at speed: with 5 and 2,
+# the takers of split units ended the runs, 0.7-1 s after their givers, on every run of an
+# H100 host (`scripts/bench_collect.py`, docs/benchmarks.md, "eleventh session")
+SETUP_FRAMES = 7
+REPLAY_SETUP_FRAMES = 4
 # the fewest sensor frames worth splitting off: with the set-up counted in the split, any piece
 # ends the run sooner; a piece of one frame would hardly be worth the world
 MIN_SPLIT_SENSOR_FRAMES = 2

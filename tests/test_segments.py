@@ -226,23 +226,23 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
     running = WorkUnit("a", 0, 100)
     slot = claims.add(running)
     assert all(runner._Claims.claim(claims.shared, slot, f) for f in range(10))
-    # 90 left, a set-up of 5 frames: the thief takes from 10 + (90 + 5) // 2 = 57 on
-    assert runner.SETUP_FRAMES == 5
-    assert runner._Claims.share(90, 1, 5) == 42  # its estimate of the 43 the taker gets
-    assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 57, 100)
-    assert runner._Claims.claim(claims.shared, slot, 56)
-    assert not runner._Claims.claim(claims.shared, slot, 57)
-    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 25) // 2 = 67, then 70
+    # 90 left, a set-up of 7 frames: the thief takes from 10 + (90 + 7) // 2 = 58 on
+    assert runner.SETUP_FRAMES == 7
+    assert runner._Claims.share(90, 1, 7) == 41  # its estimate of the 42 the taker gets
+    assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 58, 100)
+    assert runner._Claims.claim(claims.shared, slot, 57)
+    assert not runner._Claims.claim(claims.shared, slot, 58)
+    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 35) // 2 = 72, then 75
     sparse = claims.add(running)
     assert not claims.begun(sparse, running)
     runner._Claims.claim(claims.shared, sparse, 9)
     assert claims.begun(sparse, running)
-    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 70, 100)
-    # a thief whose world shows the clip's map already pays only the actors (2 sensor frames):
-    # 60 left, 10 + (60 + 10) // 2 = 45 on, 5 sensor frames
-    assert runner.REPLAY_SETUP_FRAMES == 2
-    assert runner._Claims.share(60, 5, runner.REPLAY_SETUP_FRAMES) == 5
-    assert claims.split(sparse, running, 5, runner.REPLAY_SETUP_FRAMES) == WorkUnit("a", 45, 70)
+    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 75, 100)
+    # a thief whose world shows the clip's map already pays only the actors (4 sensor frames):
+    # 65 left, 10 + (65 + 20) // 2 = 52, then 55 on: 4 sensor frames
+    assert runner.REPLAY_SETUP_FRAMES == 4
+    assert runner._Claims.share(65, 5, runner.REPLAY_SETUP_FRAMES) == 4
+    assert claims.split(sparse, running, 5, runner.REPLAY_SETUP_FRAMES) == WorkUnit("a", 55, 75)
     # a unit not begun goes whole; then nothing is left to split
     waiting = WorkUnit("b", 40, 80)
     later = claims.add(waiting)
@@ -255,20 +255,20 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
 
 
 def test_an_idle_worker_splits_a_unit_on_its_own_map_when_that_gives_it_as_much():
-    """The taker's set-up counts: a unit on the map its world shows costs it 2 sensor frames
-    (the actors), another map's 5 (the twin too); it takes the unit that gives it the most."""
+    """The taker's set-up counts: a unit on the map its world shows costs it 4 sensor frames
+    (the actors), another map's 7 (the twin too); it takes the unit that gives it the most."""
     maps = {"a": "m1", "b": "m2"}
     on_a, on_b = WorkUnit("a", 0, 200), WorkUnit("b", 0, 200)
     # 2 Hz, 60 frames left on each (12 sensor frames): on its own map the taker gets
-    # (12 - 2) // 2 = 5, on the other (12 - 5) // 2 = 3
+    # (12 - 4) // 2 = 4, on the other (12 - 7) // 2 = 2
     candidates = [(0, on_a, 60), (1, on_b, 60)]
-    assert runner.split_order(candidates, "m2", maps, 5) == [(1, on_b, 2), (0, on_a, 5)]
-    assert runner.split_order(candidates, "m1", maps, 5) == [(0, on_a, 2), (1, on_b, 5)]
+    assert runner.split_order(candidates, "m2", maps, 5) == [(1, on_b, 4), (0, on_a, 7)]
+    assert runner.split_order(candidates, "m1", maps, 5) == [(0, on_a, 4), (1, on_b, 7)]
     # a fresh worker (no world yet) pays the twin everywhere: the most frames left first
     longer = [(0, on_a, 60), (1, on_b, 90)]
-    assert runner.split_order(longer, None, maps, 5) == [(1, on_b, 5), (0, on_a, 5)]
-    # much more left elsewhere still wins over the cheaper set-up: (18 - 5) // 2 = 6 > 5
-    assert runner.split_order(longer, "m1", maps, 5) == [(1, on_b, 5), (0, on_a, 2)]
+    assert runner.split_order(longer, None, maps, 5) == [(1, on_b, 7), (0, on_a, 7)]
+    # much more left elsewhere still wins over the cheaper set-up: (18 - 7) // 2 = 5 > 4
+    assert runner.split_order(longer, "m1", maps, 5) == [(1, on_b, 7), (0, on_a, 4)]
 
 
 def test_a_split_unit_still_gives_the_one_worker_log(
