@@ -136,8 +136,9 @@ def site(tmp_path_factory):
 def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     """The same frame drawn with the scene cut into cells (most of them skipped by the front
     camera: what a renderer on the CPU does) and as one batch per material group, all drawn
-    (what it does on a GPU): the same image, with the crowns detailed at any distance (a GPU
-    draws them so; on the CPU the coarse ones beyond `FOLIAGE_DETAIL_M` are the only change)."""
+    (what it does on a GPU, with one program for every material): the same image, with the
+    crowns detailed at any distance (a GPU draws them so; on the CPU the coarse ones beyond
+    `FOLIAGE_DETAIL_M` are the only change)."""
     intersection_map, scenario = site
     monkeypatch.setattr(gl_batches, "FOLIAGE_DETAIL_M", np.inf)
     ego = scenario.ego
@@ -149,6 +150,9 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
         with World(intersection_map, scenario, renderer="gl") as world:
             images[cull] = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
             batches = world.gl.static_batches
+            # a program per material group on the CPU, one for all of them on a GPU
+            scene = {key for _, key in world.gl.arrays if key not in ("labels", "shadow")}
+            assert (len(scene) > 4) if cull else (len(scene) == 1)
             if cull:
                 assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
                 skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
 from drivee2e_data.sim.gl_batches import (
     DECALS,
+    MATERIAL_GROUPS,
     NEAR_FOLIAGE,
     NOT_CASTING,
     SHADOW_ONLY,
@@ -335,6 +336,14 @@ class GLRenderer:
         """The scene shader compiled with `variant`'s defines."""
         return _program("scene.vert", "scene.frag", variant)
 
+    def _scene_defines(self, group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
+        """The scene shader's defines for material group `group` in `variant`: the group's own
+        where the CPU draws (`gl_batches.group_defines`: llvmpipe pays for every branch), every
+        material's on a GPU, where a branch on a triangle's material costs next to nothing and a
+        world compiles two scene programs instead of a dozen (each new world's first frame
+        waited on them)."""
+        return group_defines(group if self.cull else len(MATERIAL_GROUPS), variant)
+
     def _array(self, buffer_name: str, program_key: object):
         """The vertex array feeding a program from the static or dynamic buffer (made once per
         pair, again after the dynamic buffer grows)."""
@@ -587,9 +596,10 @@ class GLRenderer:
                 self.context.enable(moderngl.CULL_FACE)
             labels = program_key == "labels"
             skip = frozenset({SHADOW_ONLY}) | (DECALS if labels else frozenset())
-            draws = batches.runs(visible, by_group=not labels, skip=skip, excluded=~detail)
+            by_group = not labels and self.cull  # one program for all groups on a GPU
+            draws = batches.runs(visible, by_group=by_group, skip=skip, excluded=~detail)
             for group, first, vertices in draws:
-                key = "labels" if labels else group_defines(group, program_key)
+                key = "labels" if labels else self._scene_defines(group, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
                                                      first=first)  # fmt: skip
 
@@ -692,7 +702,8 @@ class GLRenderer:
                     self._light_texture(shader_look)
                 groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
                 groups.discard(SHADOW_ONLY)
-                programs = [self._scene_program(group_defines(g, variant)) for g in sorted(groups)]
+                defines = {self._scene_defines(group, variant) for group in groups}
+                programs = [self._scene_program(key) for key in sorted(defines)]
                 self._apply_look(programs, shader_look, camera_position, far_m,
                                  {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
                 rotation_only = view_matrix.copy()
