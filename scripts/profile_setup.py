@@ -64,7 +64,11 @@ def _worker(k: int, root: str, clips: list[str], gpus: tuple[int, ...], folder: 
     setup = timed("first set-up", lambda: open_clip(Path(root), clips[k], options, frames))
     profile.disable()
     profile.dump_stats(os.path.join(folder, f"{k}.prof"))
+    profile = cProfile.Profile()
+    profile.enable()
     timed("first frame", lambda: setup.suite.capture(0))
+    profile.disable()
+    profile.dump_stats(os.path.join(folder, f"{k}.frame.prof"))
     timed("second frame", lambda: setup.suite.capture(5))
     other = clips[(k + 1) % len(clips)]  # the next clip: another map in the synthetic set
     setup = timed("set-up, other map", lambda: open_clip(Path(root), other, options, frames))
@@ -107,16 +111,19 @@ def main() -> None:
         for step in STEPS:
             values = [r[step] for r in results]
             print(f"{step:<20}{sum(values) / len(values):8.3f}{max(values):8.3f}")
-        stats = pstats.Stats(*(os.path.join(folder, f"{k}.prof") for k in range(workers)))
-        rows = sorted(
-            ((cumulative / workers, own / workers, name, Path(filename).name, line)
-             for (filename, line, name), (_, _, own, cumulative, _) in stats.stats.items()),
-            reverse=True,
-        )  # fmt: skip
-        print("\nthe first set-up (context and world), mean s a worker:")
-        print(f"  {'cumul.':>7} {'own':>7}  function")
-        for cumulative, own, name, filename, line in rows[: args.top]:
-            print(f"  {cumulative:7.3f} {own:7.3f}  {name} ({filename}:{line})")
+        for suffix, title in ((".prof", "the first set-up (context and world)"),
+                              (".frame.prof", "the first frame")):  # fmt: skip
+            files = (os.path.join(folder, f"{k}{suffix}") for k in range(workers))
+            stats = pstats.Stats(*files)
+            rows = sorted(
+                ((cumulative / workers, own / workers, name, Path(filename).name, line)
+                 for (filename, line, name), (_, _, own, cumulative, _) in stats.stats.items()),
+                reverse=True,
+            )  # fmt: skip
+            print(f"\n{title}, mean s a worker:")
+            print(f"  {'cumul.':>7} {'own':>7}  function")
+            for cumulative, own, name, filename, line in rows[: args.top]:
+                print(f"  {cumulative:7.3f} {own:7.3f}  {name} ({filename}:{line})")
 
 
 if __name__ == "__main__":
