@@ -83,9 +83,10 @@ class JobResult:
     error: str | None = None
     # frames collected on each Ray node (node id -> frames); empty for the local pool
     node_frames: dict[str, int] = field(default_factory=dict)
-    # (began, ended, process id, seconds of set-up) of each job that went into this result,
-    # epoch seconds: where a run's wall time went (`scripts/bench_collect.py` draws its timeline)
-    spans: list[tuple[float, float, int, float]] = field(default_factory=list)
+    # (began, ended, process id, seconds of set-up, first frame, frames captured) of each job
+    # that went into this result, epoch seconds: where a run's wall time went, and which frames
+    # each piece of a split clip got (`scripts/bench_collect.py` draws its timeline)
+    spans: list[tuple[float, float, int, float, int, int]] = field(default_factory=list)
 
 
 def log_path(root: Path, scenario_id: str) -> Path:
@@ -252,7 +253,7 @@ def collect_clip(
     return run_job(scenario_id, work)
 
 
-def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
+def run_job(scenario_id: str, work: Callable[[JobResult], None], first_frame: int = 0) -> JobResult:
     """Run `work` on a fresh result, timed; a bad clip or a bug becomes the result's error (with
     where a bug happened) instead of an exception, so one clip cannot stop the others."""
     start, began = time.perf_counter(), time.time()
@@ -269,6 +270,6 @@ def run_job(scenario_id: str, work: Callable[[JobResult], None]) -> JobResult:
         )
     result.seconds = time.perf_counter() - start
     setup = result.stage_seconds["setup"]
-    result.spans = [(began, began + result.seconds, os.getpid(), setup)]
+    result.spans = [(began, began + result.seconds, os.getpid(), setup, first_frame, result.frames)]
     result.peak_rss_bytes = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     return result

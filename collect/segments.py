@@ -365,7 +365,7 @@ def collect_segment(
         finally:
             temporary.unlink(missing_ok=True)
 
-    return run_job(unit.scenario_id, work)
+    return run_job(unit.scenario_id, work, unit.start)
 
 
 def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:

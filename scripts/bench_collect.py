@@ -302,7 +302,7 @@ def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:
     until the last job of the run ended, and `end` (the index and the rest) after that."""
     per_worker: dict[int, list[tuple[float, float, float]]] = {}
     for result in summary.results:
-        for began, ended, pid, setup in result.spans:
+        for began, ended, pid, setup, *_ in result.spans:
             per_worker.setdefault(pid, []).append((began, ended, setup))
     if not per_worker:
         return {}
@@ -336,7 +336,7 @@ def draw_timeline(summary: CollectSummary, conditions: dict, path: Path) -> None
     figure, axes = plt.subplots(figsize=(11, 0.3 * 16 + 1.5))
     for result in summary.results:
         weather = conditions[result.scenario_id].weather.value
-        for began, ended, pid, setup in sorted(result.spans):
+        for began, ended, pid, setup, *_ in sorted(result.spans):
             row = rows.setdefault(pid, len(rows))
             axes.barh(row, ended - began, left=began - summary.started, height=0.8,
                       color=colours.get(weather, "#888888"), edgecolor="black",

@@ -5,6 +5,7 @@ worker writes."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import shutil
 from pathlib import Path
 
@@ -286,6 +287,11 @@ def test_a_split_unit_still_gives_the_one_worker_log(
     (result,) = summary.results
     assert result.status == "collected" and result.frames == LONG_CLIP_FRAMES
     assert len(result.spans) == 3  # the two planned units and the piece split off the first
+    # each span names its piece's frames: together they tile the clip, none twice
+    pieces = sorted((first, first + frames) for *_, first, frames in result.spans)
+    assert pieces[0][0] == 0 and pieces[-1][1] == LONG_CLIP_FRAMES
+    assert all(end == start for (_, end), (start, _) in itertools.pairwise(pieces))
+    assert 0 < pieces[1][0] < 32 and pieces[1][1] == 32  # the first unit's later frames
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
 
