@@ -567,11 +567,15 @@ class GLRenderer:
             self.framebuffers[(width, height, outputs)] = framebuffer
         return framebuffer
 
-    def _in_view(self, matrix: NDArray[np.float64]) -> Iterator[tuple[str, DrawBatches, NDArray]]:
-        """Each buffer ("dynamic", then "static") with its batches and which of them the view
-        of `matrix` (world to clip space) may see: tested where culling, else all."""
+    def _in_view(
+        self, matrix: NDArray[np.float64], buffers: tuple[str, ...] = ("dynamic", "static")
+    ) -> Iterator[tuple[str, DrawBatches, NDArray]]:
+        """Each of `buffers` ("dynamic", then "static") with its batches and which of them the
+        view of `matrix` (world to clip space) may see: tested where culling, else all."""
         for buffer_name, batches in (("dynamic", self.dynamic_batches),
                                      ("static", self.static_batches)):  # fmt: skip
+            if buffer_name not in buffers:
+                continue
             visible = batches.visible(matrix) if self.cull else np.ones(len(batches.group), bool)
             yield buffer_name, batches, visible
 
@@ -634,9 +638,7 @@ class GLRenderer:
         framebuffer.use()
         if clear:
             framebuffer.clear(depth=1.0)
-        for buffer_name, batches, visible in self._in_view(matrix):
-            if buffer_name not in buffers:
-                continue
+        for buffer_name, batches, visible in self._in_view(matrix, buffers):
             # crowns cast from their coarse mesh
             draws = batches.runs(visible, by_group=False, skip=NOT_CASTING | {NEAR_FOLIAGE})
             for _, first, vertices in draws:
