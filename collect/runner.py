@@ -309,8 +309,6 @@ def collect(
     logs = root / LOGS_FOLDER
     summary = CollectSummary(started=time.time())
     start = time.perf_counter()
-    if backend == "local" and workers > 1:  # its imports overlap the planning below
-        start_server(preloading(WORKER_MODULES))
     with _run_lock(logs):
         for stale in logs.glob(f".*{PARTIAL_SUFFIX}"):
             stale.unlink()  # a crashed run's unfinished log; its clip is redone
@@ -323,6 +321,8 @@ def collect(
                 summary.results.append(JobResult(scenario_id, "no ego"))
             else:
                 pending.append(scenario_id)
+        if backend == "local" and workers > 1 and pending:  # its imports overlap the planning
+            start_server(preloading(WORKER_MODULES))
         if backend == "ray" and pending:  # units for every CPU of the cluster
             workers = max(workers, _start_ray())
         # the local pool splits running segments for idle workers: no piece is a whole clip

@@ -45,9 +45,9 @@ def preloading(modules: Sequence[str]) -> multiprocessing.context.BaseContext:
     """The start method of a pool whose workers all import `modules`: forked from one server
     process that imported them once (multiprocessing's forkserver), where the system has it,
     else `SPAWN`. The server is a fresh interpreter too (no pybullet or EGL state of the
-    parent's), started by the first pool of this process with the environment of that moment
-    (`one_thread_per_worker`'s included), and serving every later pool: sixteen workers
-    importing the collector at once took about a second each on an H100 host."""
+    parent's), started by `start_server` or the first pool of this process, with the environment
+    of that moment (`one_thread_per_worker`'s included), and serving every later pool: sixteen
+    workers importing the collector at once took about a second each on an H100 host."""
     if "forkserver" not in multiprocessing.get_all_start_methods():
         return SPAWN
     context = multiprocessing.get_context("forkserver")
