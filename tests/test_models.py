@@ -12,7 +12,7 @@ from drivee2e_data.sim.actors import BLUEPRINTS, convex_parts
 from drivee2e_data.sim.animation import animation_at, track_motion
 from drivee2e_data.sim.conditions import ShaderLook
 from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
-from drivee2e_data.sim.models import Animation, Light, agent_model, pose
+from drivee2e_data.sim.models import Animation, Light, agent_model, palette, pose, vehicles
 from drivee2e_data.sim.models.mesh import HIP_SWING_RAD, face_normals
 from drivee2e_data.sim.twin import TwinMesh, box_mesh
 from tests.factories import straight_track
@@ -58,6 +58,26 @@ def test_colours_are_drawn_per_instance_and_the_same_every_time():
     paints = {tuple(agent_model(AgentClass.CAR, "sedan", size, f"car-{k}").colours[0].round(2))
               for k in range(40)}  # fmt: skip
     assert len(paints) > 5  # many instances, several colours
+
+
+def test_a_vehicle_is_its_blueprints_shared_shape_painted_as_if_built_with_its_colours():
+    """`vehicle_model` paints a shape built once per blueprint: every array equals the model
+    built directly with the instance's colours, and all but the colours are the shape's own."""
+    for blueprint, size in (("sedan", (4.6, 1.85, 1.45)), ("box_truck", (7.5, 2.5, 3.4))):
+        for instance in ("car-1", "car-2"):
+            rng = palette.instance_rng(instance)
+            paint = palette.car_colour(rng)
+            if blueprint == "sedan":
+                direct = vehicles.car_like(vehicles.SEDAN, np.asarray(size), paint)
+            else:
+                cargo = palette.pick(palette.CARGO_COLOURS, rng)
+                direct = vehicles.truck(np.asarray(size), paint, cargo, tractor=False)
+            model = vehicles.vehicle_model(blueprint, size, instance)
+            for field in ("positions", "normals", "colours", "materials", "lights", "joints"):
+                assert np.array_equal(getattr(model, field), getattr(direct, field)), field
+            assert model.positions is vehicles.vehicle_shape(blueprint, size).positions
+            assert (model.colours >= 0).all()  # no placeholder left
+            assert np.isclose(model.colours, np.float32(paint)).all(axis=1).sum() > 100
 
 
 def test_mesh_triangles_face_outwards_on_a_car_body():

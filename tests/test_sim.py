@@ -14,6 +14,7 @@ from drivee2e_data import pipeline, store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
+from drivee2e_data.sim.actors import geometry_key
 from drivee2e_data.sim.twin import CROWN_RGBAS, FACADE_RGBAS
 from drivee2e_data.sim.world import World, connect, tracks_shown_in
 from tests.factories import egl_world, front_view, synthetic_clip
@@ -306,6 +307,36 @@ def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
         other = type(scenarios[0])(**{**scenarios[0].__dict__, "map_id": "elsewhere"})
         with pytest.raises(DriveE2EError, match="is on map 'elsewhere'"):
             world.replay(other)
+
+
+def test_vehicles_of_one_blueprint_share_a_collision_shape_that_outlives_a_replay(tmp_path: Path):
+    """One collision shape per model geometry in a world: the cars of a blueprint share one, a
+    replay's bodies take the shapes made before, and rays hit each body where it stands."""
+    import pybullet
+
+    pipeline.synthesize(tmp_path, clips=2, seed=5, intersections=1)
+    first, second = (store.read_scenario(tmp_path, i) for i in store.scenario_ids(tmp_path))
+    intersection_map = store.read_map(tmp_path, first.map_id)
+    with World(intersection_map, first, renderer="tiny", draw_radius_m=1e6) as world:
+        made = []
+        for scenario in (first, second):
+            if scenario is second:
+                world.replay(second)
+            cars = [t for t in scenario.tracks if world.blueprints[t.track_id].name == "sedan"]
+            assert len(cars) >= 2
+            (key,) = {
+                geometry_key(world.models[t.track_id]) for t in cars if t.track_id in world.models
+            }
+            made.append(world.collision_shapes[key])
+            geometries = {geometry_key(model) for model in world.models.values()}
+            assert geometries <= set(world.collision_shapes)
+            assert len(world.collision_shapes) < len(world.bodies)
+            frame = next(f for f in range(scenario.num_frames) if cars[0].valid[f])
+            world.set_time(frame)
+            x, y, z = (cars[0].x_m[frame], cars[0].y_m[frame], 10.0)
+            hit = pybullet.rayTest([x, y, z], [x, y, -1.0], physicsClientId=world.client)[0]
+            assert hit[0] == world.bodies[cars[0].track_id]
+        assert made[0] == made[1]  # the second clip's sedans took the first's shape
 
 
 def test_an_egl_world_superseded_by_a_newer_one_refuses_to_render(clip):

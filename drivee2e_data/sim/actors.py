@@ -107,11 +107,17 @@ def _bins(values: NDArray[np.float64], count: int) -> NDArray[np.int64]:
     return np.clip(np.searchsorted(edges, values, side="right") - 1, 0, count - 1)
 
 
+def geometry_key(model: ModelMesh) -> int:
+    """What a model's collision shape depends on (`convex_parts`), as a number: models with the
+    same key have the same shape."""
+    return zlib.crc32(model.joints.tobytes(), zlib.crc32(model.positions.tobytes()))
+
+
 def _part_files(model: ModelMesh, folder: Path) -> list[str]:
     """OBJ files of the model's convex parts (their triangles; pybullet hulls a mesh shape's
     vertices), written once per shape into `folder`."""
     parts = convex_parts(model)
-    key = zlib.crc32(model.positions.tobytes())
+    key = geometry_key(model)
     names = []
     for index, part in enumerate(parts):
         path = folder / f"actor_{key:08x}_{index:02d}.obj"
@@ -122,10 +128,13 @@ def _part_files(model: ModelMesh, folder: Path) -> list[str]:
 
 
 def create_actor(client: int, blueprint: Blueprint, model: ModelMesh | None = None,
-                 folder: Path | None = None) -> int:  # fmt: skip
+                 folder: Path | None = None, made: dict[int, int] | None = None) -> int:  # fmt: skip
     """A pybullet body for the blueprint, its origin at the box centre: its visual shape the
     blueprint's boxes (pybullet's renderers), its collision shape the `model`'s convex parts
-    (files written into `folder`) or, without a model, the same boxes."""
+    (files written into `folder`) or, without a model, the same boxes. `made`: the client's
+    collision shapes made so far, by model geometry (`geometry_key`), shared by the bodies of
+    models of one geometry (the vehicles of a blueprint: `models.vehicles.vehicle_shape`) and
+    added to here; pybullet keeps a shape when a body that uses it is removed."""
     import pybullet
 
     length, width, height = blueprint.size_m
@@ -156,11 +165,16 @@ def create_actor(client: int, blueprint: Blueprint, model: ModelMesh | None = No
     # LiDAR rays hit what the cameras see (and what the depth-image LiDAR reads): the
     # collision shapes are the model's; the annotation box stays the blueprint's box
     if model is not None and folder is not None:
-        files = _part_files(model, folder)
-        collision = pybullet.createCollisionShapeArray(
-            shapeTypes=[pybullet.GEOM_MESH] * len(files), fileNames=files,
-            meshScales=[[1.0, 1.0, 1.0]] * len(files), physicsClientId=client,
-        )  # fmt: skip
+        key = geometry_key(model)
+        collision = made.get(key) if made is not None else None
+        if collision is None:
+            files = _part_files(model, folder)
+            collision = pybullet.createCollisionShapeArray(
+                shapeTypes=[pybullet.GEOM_MESH] * len(files), fileNames=files,
+                meshScales=[[1.0, 1.0, 1.0]] * len(files), physicsClientId=client,
+            )  # fmt: skip
+            if made is not None:
+                made[key] = collision
     else:
         collision = pybullet.createCollisionShapeArray(
             collisionFramePositions=[list(o) for o in offsets], **geometry

@@ -167,6 +167,7 @@ class World:
         self.intersection_map, self.draw_radius_m = intersection_map, draw_radius_m
         self.twin: Twin = build_twin(intersection_map, self.client)
         self.bodies: dict[str, int] = {}
+        self.collision_shapes: dict[int, int] = {}  # the actors' by geometry (`create_actor`)
         self.gl: GLRenderer | None = None
         self.state = 0  # counts changes to what is drawn (poses, lamps, actors)
         self.animations: dict[int, Animation] = {}  # body -> its model's pose inputs now
@@ -209,7 +210,13 @@ class World:
             t.track_id: track_motion(t) for t in scenario.tracks
         }
         self.bodies = {
-            track_id: create_actor(self.client, bp, self.models.get(track_id), self.twin.mesh_dir)
+            track_id: create_actor(
+                self.client,
+                bp,
+                self.models.get(track_id),
+                self.twin.mesh_dir,
+                self.collision_shapes,
+            )
             for track_id, bp in self.blueprints.items()
         }
         self.lighting = lighting(scenario.conditions, self.intersection_map.origin)
