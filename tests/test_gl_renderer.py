@@ -230,6 +230,33 @@ def test_a_frames_cameras_and_top_view_share_one_shadow_map(site, monkeypatch):
     assert np.array_equal(shared, fresh)
 
 
+def test_the_top_view_of_the_cameras_state_draws_the_ego_as_a_view_with_it_shown(site):
+    """`casters_drawn`: the ego, hidden from its cameras and casting its shadow, drawn where it
+    stands, gives the image of a state with the ego shown, without syncing the bodies again;
+    without it the ego is missing."""
+    intersection_map, scenario = site
+    ego = scenario.ego
+    with World(intersection_map, scenario, renderer="gl") as world:
+        world.gl.set_look(_low_sun_behind(world, 20))
+        _front(world, 20, segmentation=False)  # the cameras' state
+        synced = world.gl.synced
+        eye = np.array([ego.x_m[20], ego.y_m[20], 30.0])
+
+        def above(casters_drawn: bool):  # type: ignore[no-untyped-def]
+            return world.render(eye, eye - np.array([0, 0, 1.0]), 160, 160, 40.0, near_m=0.5,
+                                up=(1.0, 0.0, 0.0), look="plain",
+                                casters_drawn=casters_drawn).rgb  # fmt: skip
+
+        drawn, missing = above(True), above(False)
+        assert world.gl.synced == synced  # no second sync
+        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), None)  # shown
+        world.set_time(20)
+        shown = above(False)
+    assert np.array_equal(drawn, shown)
+    # the ego covers the middle of the view (it stands under the eye)
+    assert np.abs(shown[70:90, 70:90].astype(int) - missing[70:90, 70:90]).max() > 30
+
+
 def shadow_map(world: World) -> bytes:
     """The sun's shadow map as the GL world holds it (read with its context current: another
     library's may be current between draws)."""

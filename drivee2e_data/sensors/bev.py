@@ -17,8 +17,10 @@ def top_view(
     ego_to_world: NDArray[np.float64],
     size_px: int = DEFAULT_SIZE_PX,
     half_width_m: float = DEFAULT_HALF_WIDTH_M,
+    casters_drawn: bool = False,
 ) -> NDArray[np.uint8]:
-    """(size, size, 3) RGB centred on the ego, ego +x pointing up the image, ego +y left."""
+    """(size, size, 3) RGB centred on the ego, ego +x pointing up the image, ego +y left;
+    `casters_drawn` as in `World.render` (the ego of a camera frame's state drawn)."""
     centre = ego_to_world[:3, 3]
     fov = float(np.rad2deg(2 * np.arctan(half_width_m / ALTITUDE_M)))
     eye = np.array([centre[0], centre[1], ALTITUDE_M])
@@ -34,4 +36,5 @@ def top_view(
         near_m=ALTITUDE_M - 60.0,
         up=ego_to_world[:3, 0],
         look="plain",
+        casters_drawn=casters_drawn,
     ).rgb

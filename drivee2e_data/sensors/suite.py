@@ -229,9 +229,13 @@ class SensorSuite:
         with _timed(seconds, "annotate"):
             boxes = self._annotate(frame, ego_to_world, views, sweep, lidar_to_world, returns)
         with _timed(seconds, "bev"):
-            world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), None)
-            world.set_time(frame)  # the top view shows the ego too
-            top = bev.top_view(world, ego_to_world, self.options.bev_size_px)
+            # the top view shows the ego too: the GL renderer draws it from the cameras' state
+            # (hidden from them, it casts its shadow there); pybullet's draw bodies where they are
+            if world.gl is None:
+                world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), None)
+                world.set_time(frame)
+            top = bev.top_view(world, ego_to_world, self.options.bev_size_px,
+                               casters_drawn=world.gl is not None)  # fmt: skip
             bev_jpeg = encode_jpeg(top, self.options.jpeg_quality)
         state = self.capture_state(frame)
         return SensorFrame(

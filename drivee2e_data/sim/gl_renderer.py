@@ -580,12 +580,17 @@ class GLRenderer:
             yield buffer_name, batches, visible
 
     def _draw_geometry(
-        self, program_key: object, matrix: NDArray[np.float64], eye_m: NDArray[np.float64]
+        self,
+        program_key: object,
+        matrix: NDArray[np.float64],
+        eye_m: NDArray[np.float64],
+        casters_drawn: bool = False,
     ) -> None:
         """Both buffers' batches that the view of `matrix` (world to clip space) from `eye_m`
         may see, at their level of detail (`gl_batches.level_of_detail`): with the labels
         program (`program_key` "labels") in as few draws as they allow, or with the scene shader
-        of variant `program_key` one material group at a time (`MATERIAL_GROUPS`)."""
+        of variant `program_key` one material group at a time (`MATERIAL_GROUPS`); the
+        shadow-only casters too where `casters_drawn`, with every material's code."""
         import moderngl
 
         # near things first, so that the depth test spares shading what they hide; actors are
@@ -600,11 +605,13 @@ class GLRenderer:
             else:
                 self.context.enable(moderngl.CULL_FACE)
             labels = program_key == "labels"
-            skip = frozenset({SHADOW_ONLY}) | (DECALS if labels else frozenset())
+            hidden = frozenset() if casters_drawn and not labels else frozenset({SHADOW_ONLY})
+            skip = hidden | (DECALS if labels else frozenset())
             by_group = not labels and self.cull  # one program for all groups on a GPU
             draws = batches.runs(visible, by_group=by_group, skip=skip, excluded=~detail)
             for group, first, vertices in draws:
-                key = "labels" if labels else self._scene_defines(group, program_key)
+                every = len(MATERIAL_GROUPS) if group == SHADOW_ONLY else group
+                key = "labels" if labels else self._scene_defines(every, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
                                                      first=first)  # fmt: skip
 
@@ -654,6 +661,7 @@ class GLRenderer:
         segmentation: bool,
         far_m: float,
         look: str = "camera",
+        casters_drawn: bool = False,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
         """RGB `(H, W, 3)`, the depth along the view axis `(H, W)` in metres (`far_m` where
         nothing is drawn) and, with `segmentation`, the body id per pixel `(H, W)` (-1 for
@@ -661,7 +669,10 @@ class GLRenderer:
         is the top of the image. `look`: "camera" (the clip's weather and light), "plain"
         (its sun without weather or night: the top view) or "labels" (ids and depth only, RGB
         black). Depth is the fragment's own (float32), not read back from a depth buffer and
-        linearised: finer than any depth buffer's step, and no CPU work."""
+        linearised: finer than any depth buffer's step, and no CPU work. `casters_drawn`: the
+        moving bodies that only cast shadows (`SceneLights.casters`: the ego, hidden from its
+        own cameras) are drawn too, as they would be shown: the top view of a camera frame's
+        state, without syncing the bodies again (4 ms of a frame on llvmpipe)."""
         import cv2
         import moderngl
 
@@ -704,6 +715,8 @@ class GLRenderer:
                 if shader_look.lamps_on:
                     self._light_texture(shader_look)
                 groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
+                if SHADOW_ONLY in groups and casters_drawn:
+                    groups.add(len(MATERIAL_GROUPS))  # drawn with every material's code
                 groups.discard(SHADOW_ONLY)
                 defines = {self._scene_defines(group, variant) for group in groups}
                 programs = [self._scene_program(key) for key in sorted(defines)]
@@ -717,7 +730,7 @@ class GLRenderer:
                 self.shadow_texture.use(location=0)
                 self.wear_texture.use(location=1)
                 self.lamp_texture.use(location=2)
-                self._draw_geometry(variant, matrix, camera_position)
+                self._draw_geometry(variant, matrix, camera_position, casters_drawn)
                 # the sky last, on the far plane, where nothing was drawn: the depth test spares
                 # shading the sky behind the scene
                 self.context.disable(moderngl.CULL_FACE)

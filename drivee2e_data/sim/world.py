@@ -414,6 +414,7 @@ class World:
         native: bool = False,
         frustum: tuple[float, float, float, float] | None = None,
         look: str = "camera",
+        casters_drawn: bool = False,
     ) -> Image:
         """A `width` x `height` image from a pinhole camera at `eye_m` looking at `target_m`, `up`
         pointing up in the image (world z unless given). With `native`, the image as drawn: with
@@ -421,7 +422,9 @@ class World:
         (left, right, bottom, top), tangents of the image's edges off the view axis, replaces
         `vertical_fov_deg` with an off-centre (or non-square-pixel) view. `look` (the GL
         renderer's): "camera" draws the clip's weather and light, "plain" its sun alone (the top
-        view), "labels" depth and body ids alone (RGB black)."""
+        view), "labels" depth and body ids alone (RGB black). `casters_drawn` (the GL
+        renderer's): the ego hidden from its cameras but placed with its pose (`place_ego`) is
+        drawn too, where it stands: the top view of the cameras' state."""
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -444,7 +447,7 @@ class World:
             )
         drawn_width, drawn_height = self.drawn_size(width, height)
         image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m,
-                          look)  # fmt: skip
+                          look, casters_drawn)  # fmt: skip
         if native or (drawn_width, drawn_height) == (width, height):
             return image
         return image.resized(width, height)
@@ -479,16 +482,18 @@ class World:
         near_m: float,
         far_m: float,
         look: str = "camera",
+        casters_drawn: bool = False,
     ) -> Image:
         """The image drawn with pybullet's column-major `view` and `projection` matrices at
         `width` x `height` (pybullet's EGL plugin stretches what exceeds its window; `render`
-        keeps within it), depth in metres; `look` as in `render` (pybullet's renderers have
-        one)."""
+        keeps within it), depth in metres; `look` and `casters_drawn` as in `render`
+        (pybullet's renderers have one look and draw the bodies where they stand)."""
         import cv2
 
         if self.gl is not None:
             self.gl.sync(self.state, self.animations, self.scene_lights)
-            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m, look))
+            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m, look,
+                                       casters_drawn))  # fmt: skip
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
