@@ -25,9 +25,11 @@ from mcap_protobuf.schema import build_file_descriptor_set
 from drivee2e_data.errors import LogFormatError
 
 COMPRESSION = "zstd"
-# zstd's default level: 3 packs a LiDAR chunk to 0.43 of its size in 5 ms here, level 1 to
-# 0.44 in 3 ms; images (JPEG) only to 0.89 either way (docs/benchmarks.md, "eighth session")
-ZSTD_LEVEL = 3
+# zstd's level 1: it packs a frame's LiDAR chunk (1.9 MB) to 0.438 of its size in 3.3 ms here
+# and its images (JPEG) to 0.89 in 0.7 ms, where the default level 3 took 5.6 and 1.2 ms for
+# 0.427 and 0.874: a log 2% larger for 1% more frames a second on 2 cores (docs/benchmarks.md,
+# "twelfth session")
+ZSTD_LEVEL = 1
 
 # a message record: opcode, length, channel id, sequence, log time, publish time (then data)
 _MESSAGE = struct.Struct("<BQHIQQ")

@@ -700,9 +700,17 @@ class GLRenderer:
             framebuffer = self._framebuffer(width, height, outputs)
             framebuffer.use()
             clear = {"rgba": (*CLEAR_RGB, 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
-            for attachment, name in enumerate(outputs):
+            # the sky, drawn last wherever nothing else is, writes every output a camera's or
+            # the top view's pixel holds (colour, depth far_m, body 0): only a labels view,
+            # without a sky, has its attachments cleared (clearing them cost llvmpipe 0.7 ms a
+            # 1600x900 view)
+            cleared = outputs if look == "labels" else ()
+            for attachment, name in enumerate(cleared):
                 framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(len(outputs)))
                 framebuffer.clear(*clear[name], depth=1.0)
+            if not cleared:
+                framebuffer.color_mask = ((False,) * 4,) * len(outputs)
+                framebuffer.clear(depth=1.0)
             framebuffer.color_mask = ((True,) * 4,) * len(outputs)
             self.context.front_face = "cw"
             if look == "labels":
