@@ -30,6 +30,14 @@ import pyarrow.parquet as pq
 
 from drivee2e_data import store
 from drivee2e_data.collect import segments
+from drivee2e_data.collect.balance import (
+    MIN_SPLIT_SENSOR_FRAMES,
+    SETUP_FRAMES,
+    Candidate,
+    SetupCosts,
+    sensor_frames,
+    split_order,
+)
 from drivee2e_data.collect.job import (
     LOGS_FOLDER,
     CollectOptions,
@@ -65,18 +73,6 @@ SPLITS_PER_WORKER = 4
 # what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
 # this module (and with it the collector's), and what a world imports when it is set up
 WORKER_MODULES = ("drivee2e_data.collect.runner", "pybullet", "moderngl", "glcontext.egl")
-# what setting up a clip's world costs a worker taking part of a running unit, in sensor frames
-# of work (a sensor frame and the state frames up to the next: 0.32-0.36 s on a loaded H100
-# host), its first frames' extra cost in the new world included: a world on another map, its
-# twin built, 1.3-1.6 s; on the map the worker's world shows, only the actors replaced,
-# 0.4-0.7 s; and about 0.7 s more than that before the new world runs at speed: with 5 and 2,
-# the takers of split units ended the runs, 0.7-1 s after their givers, on every run of an
-# H100 host (`scripts/bench_collect.py`, docs/benchmarks.md, "eleventh session")
-SETUP_FRAMES = 7
-REPLAY_SETUP_FRAMES = 4
-# the fewest sensor frames worth splitting off: with the set-up counted in the split, any piece
-# ends the run sooner; a piece of one frame would hardly be worth the world
-MIN_SPLIT_SENSOR_FRAMES = 2
 INDEX_NAME = "index.parquet"
 
 
@@ -471,11 +467,9 @@ class _Claims:
         """Whether the unit's worker has claimed its first frame."""
         return self.shared[2 * slot] > unit.start
 
-    @staticmethod
-    def share(remaining: int, sensor_every: int, setup_frames: int) -> int:
-        """Sensor frames a taker gets of a running unit with `remaining` frames left, whose
-        world costs it `setup_frames` (see `split`)."""
-        return (remaining // sensor_every - setup_frames) // 2
+    def left(self, slot: int, sensor_every: int) -> int:
+        """The sensor frames `slot` has left."""
+        return sensor_frames(self.shared[2 * slot], self.remaining(slot), sensor_every)
 
     def split(
         self, slot: int, unit: WorkUnit, sensor_every: int, setup_frames: int = SETUP_FRAMES
@@ -496,24 +490,6 @@ class _Claims:
         return WorkUnit(unit.scenario_id, at, stop)
 
 
-def split_order(
-    candidates: list[tuple[int, WorkUnit, int]],
-    taker_map: str | None,
-    maps: dict[str, str],
-    sensor_every: int,
-) -> list[tuple[int, WorkUnit, int]]:
-    """Running units (slot, unit, frames left) as an idle worker whose world shows `taker_map`
-    should try to split them: (slot, unit, its set-up in sensor frames), the most sensor frames
-    for the taker first (`_Claims.share`). A unit on the taker's map costs it only the actors
-    (`REPLAY_SETUP_FRAMES`), any other a twin too (`SETUP_FRAMES`)."""
-    ranked = []
-    for slot, unit, remaining in candidates:
-        same = taker_map is not None and maps.get(unit.scenario_id) == taker_map
-        setup = REPLAY_SETUP_FRAMES if same else SETUP_FRAMES
-        ranked.append((-_Claims.share(remaining, sensor_every, setup), slot, unit, setup))
-    return [(slot, unit, setup) for _, slot, unit, setup in sorted(ranked)]
-
-
 def _run_pool(
     root: Path,
     jobs: list[Job],
@@ -526,12 +502,13 @@ def _run_pool(
     then: Callable[[], None] | None = None,
 ) -> None:
     """Jobs on a pool of worker processes, longest first, handed out as workers free up (one
-    queued ahead for each). Once none is waiting, a worker that frees up takes the later half
-    of a running unit, less its set-up (`_Claims.split`): the unit that gives it the most
-    frames, counting a world on the map its own shows (`maps`: each clip's) as a cheap set-up.
-    A clip's conditions make its frames up to 1.3x dearer than another's, so equal shares of
-    frames finish apart, and the pool's wall time is then its even share plus about a world's
-    set-up. A clip whose segments are all done has its log written at once by a thread of this
+    queued ahead for each). Once none is waiting, a worker that frees up takes frames of a
+    running job (`balance.split_order`): the later half of a running unit, less its set-up
+    (`_Claims.split`), or a unit its worker has not begun, whichever ends a job soonest,
+    counting a world on the map its own shows (`maps`: each clip's) as a replay; the set-ups
+    are measured as the pool runs (`balance.SetupCosts`). A clip's conditions make its frames
+    up to 1.3x dearer than another's, so equal shares of frames finish apart, and the pool's
+    wall time is then its even share plus about a world's set-up. A clip whose segments are all done has its log written at once by a thread of this
     process: writing a log from segments is a copy of their chunks, so it takes no worker and
     the logs get written while the collection goes on; the thread makes the log's index rows
     too. `then` runs after the last job, while the workers exit."""
@@ -557,24 +534,40 @@ def _run_pool(
         maps_of = maps or {}
         idle_maps: collections.deque[str | None] = collections.deque()  # freed workers' worlds
 
+        costs = SetupCosts(options.sensor_every)
+        worker_maps: dict[int, str] = {}  # process id -> the map its world shows
+
         def split_one() -> bool:
-            """Give an idle worker the later frames of the unit that gives it the most."""
+            """Give an idle worker the frames that end a running job soonest (`split_order`)."""
             if claims.full:
                 return False
-            # a job's first unit not begun was just handed out (a queued job would have been
-            # taken by the idle worker): splitting it would only take it from its worker
-            candidates = [
-                (slot, unit, claims.remaining(slot))
-                for future, job in running.items()
-                if not isinstance(job, str)
-                for k, (unit, slot) in enumerate(zip(job, slots[future], strict=True))
-                if k or claims.begun(slot, unit)
-            ]
+            every = options.sensor_every
+            candidates, units_of = [], {}
+            for future, job in running.items():
+                if isinstance(job, str):
+                    continue
+                ahead, previous = 0, None
+                for k, (unit, slot) in enumerate(zip(job, slots[future], strict=True)):
+                    left, begun = claims.left(slot, every), claims.begun(slot, unit)
+                    same = previous is None or maps_of.get(previous) == maps_of.get(
+                        unit.scenario_id
+                    )
+                    # a job's first unit not begun was just handed out (a queued job would have
+                    # been taken by the idle worker): splitting it would only take it from its
+                    # worker
+                    if k or begun:
+                        candidates.append(
+                            Candidate(slot, unit.scenario_id, left, begun, ahead, same)
+                        )
+                        units_of[slot] = unit
+                    if k and not begun and left:
+                        ahead += costs.frames(new_world=not same)
+                    ahead += left
+                    previous = unit.scenario_id
             taker_map = idle_maps[0] if idle_maps else None
-            for slot, unit, setup in split_order(
-                candidates, taker_map, maps_of, options.sensor_every
-            ):
-                piece = claims.split(slot, unit, options.sensor_every, setup)
+            for candidate, setup in split_order(candidates, taker_map, maps_of, costs):
+                unit = units_of[candidate.slot]
+                piece = claims.split(candidate.slot, unit, every, setup)
                 if piece is not None:
                     tracker.add(piece)
                     submit((piece,))
@@ -582,6 +575,16 @@ def _run_pool(
                         idle_maps.popleft()
                     return True
             return False
+
+        def measured(unit: WorkUnit, result: JobResult) -> None:
+            """The unit's set-up and frames into `costs`, the map of its worker's world noted."""
+            map_id = maps_of.get(unit.scenario_id, unit.scenario_id)
+            for began, ended, pid, setup, first, frames in result.spans:
+                if not setup:
+                    continue  # refused before it began: no world made
+                new_world = None if pid not in worker_maps else worker_maps[pid] != map_id
+                costs.add(ended - began, setup, first, frames, new_world)
+                worker_maps[pid] = map_id
 
         def merge(scenario_id: str) -> None:
             running[writers.submit(tracker.write_log, scenario_id)] = scenario_id
@@ -617,6 +620,7 @@ def _run_pool(
                     ]
                 world = None  # the map of the world the job's worker holds now
                 for unit, result in zip(job, results, strict=True):
+                    measured(unit, result)
                     if result.stage_seconds.get("setup"):
                         world = maps_of.get(unit.scenario_id)
                     if (clip := tracker.finished(unit, result)) is not None:

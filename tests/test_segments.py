@@ -14,7 +14,7 @@ from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.collect import host, runner, segments
+from drivee2e_data.collect import balance, host, runner, segments
 from drivee2e_data.collect.job import CollectOptions
 from drivee2e_data.collect.runner import collect
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
@@ -227,23 +227,23 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
     running = WorkUnit("a", 0, 100)
     slot = claims.add(running)
     assert all(runner._Claims.claim(claims.shared, slot, f) for f in range(10))
-    # 90 left, a set-up of 7 frames: the thief takes from 10 + (90 + 7) // 2 = 58 on
-    assert runner.SETUP_FRAMES == 7
-    assert runner._Claims.share(90, 1, 7) == 41  # its estimate of the 42 the taker gets
+    # 90 left, a set-up of 6 frames: the thief takes from 10 + (90 + 6) // 2 = 58 on
+    assert balance.SETUP_FRAMES == 6
+    assert claims.left(slot, 1) == 90
     assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 58, 100)
     assert runner._Claims.claim(claims.shared, slot, 57)
     assert not runner._Claims.claim(claims.shared, slot, 58)
-    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 35) // 2 = 72, then 75
+    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 30) // 2 = 70
     sparse = claims.add(running)
     assert not claims.begun(sparse, running)
     runner._Claims.claim(claims.shared, sparse, 9)
     assert claims.begun(sparse, running)
-    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 75, 100)
-    # a thief whose world shows the clip's map already pays only the actors (4 sensor frames):
-    # 65 left, 10 + (65 + 20) // 2 = 52, then 55 on: 4 sensor frames
-    assert runner.REPLAY_SETUP_FRAMES == 4
-    assert runner._Claims.share(65, 5, runner.REPLAY_SETUP_FRAMES) == 4
-    assert claims.split(sparse, running, 5, runner.REPLAY_SETUP_FRAMES) == WorkUnit("a", 55, 75)
+    assert claims.left(sparse, 5) == 18  # frames 10, 15, .. 95
+    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 70, 100)
+    # a thief whose world shows the clip's map already pays only the actors (2 sensor frames):
+    # 60 left, 10 + (60 + 10) // 2 = 45 on: 5 sensor frames
+    assert balance.REPLAY_SETUP_FRAMES == 2
+    assert claims.split(sparse, running, 5, balance.REPLAY_SETUP_FRAMES) == WorkUnit("a", 45, 70)
     # a unit not begun goes whole; then nothing is left to split
     waiting = WorkUnit("b", 40, 80)
     later = claims.add(waiting)
@@ -255,21 +255,50 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
         claims.add(waiting)
 
 
-def test_an_idle_worker_splits_a_unit_on_its_own_map_when_that_gives_it_as_much():
-    """The taker's set-up counts: a unit on the map its world shows costs it 4 sensor frames
-    (the actors), another map's 7 (the twin too); it takes the unit that gives it the most."""
-    maps = {"a": "m1", "b": "m2"}
-    on_a, on_b = WorkUnit("a", 0, 200), WorkUnit("b", 0, 200)
-    # 2 Hz, 60 frames left on each (12 sensor frames): on its own map the taker gets
-    # (12 - 4) // 2 = 4, on the other (12 - 7) // 2 = 2
-    candidates = [(0, on_a, 60), (1, on_b, 60)]
-    assert runner.split_order(candidates, "m2", maps, 5) == [(1, on_b, 4), (0, on_a, 7)]
-    assert runner.split_order(candidates, "m1", maps, 5) == [(0, on_a, 4), (1, on_b, 7)]
-    # a fresh worker (no world yet) pays the twin everywhere: the most frames left first
-    longer = [(0, on_a, 60), (1, on_b, 90)]
-    assert runner.split_order(longer, None, maps, 5) == [(1, on_b, 7), (0, on_a, 7)]
-    # much more left elsewhere still wins over the cheaper set-up: (18 - 7) // 2 = 5 > 4
-    assert runner.split_order(longer, "m1", maps, 5) == [(1, on_b, 7), (0, on_a, 4)]
+def test_set_up_costs_are_measured_in_sensor_frames_once_a_kind_is_seen():
+    """Until a kind of set-up has been seen the constants stand; then the median set-up over the
+    mean time of a sensor frame, a new world's first frames one sensor frame more; a worker's
+    first world (None) counts its frames but not its set-up."""
+    costs = balance.SetupCosts(sensor_every=5)
+    assert (costs.frames(new_world=True), costs.frames(new_world=False)) == (6, 2)
+    costs.add(seconds=12.0, setup=2.0, first=0, frames=200, new_world=None)  # 40 sensor frames
+    assert costs.frames(new_world=True) == 6
+    costs.add(seconds=4.25, setup=0.25, first=3, frames=80, new_world=False)  # 5, 10 .. 80: 16
+    costs.add(seconds=5.0, setup=1.1, first=0, frames=64, new_world=True)  # 13
+    costs.add(seconds=5.0, setup=0.9, first=0, frames=64, new_world=True)
+    costs.add(seconds=5.0, setup=1.0, first=0, frames=64, new_world=True)
+    # 10 + 4 + 12 s of capture over 40 + 16 + 39 sensor frames: 0.274 s a sensor frame
+    assert balance.sensor_frames(3, 80, 5) == 16
+    assert costs.frames(new_world=False) == 1  # 0.25 / 0.274, rounded up
+    assert costs.frames(new_world=True) == 4 + 1  # 1.0 / 0.274 -> 4, and the first frames
+
+
+def test_an_idle_worker_takes_what_ends_a_job_soonest():
+    """The taker's set-up counts: a unit on the map its world shows costs it a replay (2 sensor
+    frames), another map's a new world (6); a begun unit gives half of what is left less that,
+    a unit not begun goes whole where its worker would end it later than the taker."""
+    maps = {"a": "m1", "b": "m2", "c": "m2"}
+    costs = balance.SetupCosts(sensor_every=5)
+    on_a = balance.Candidate(0, "a", left=12, begun=True)
+    on_b = balance.Candidate(1, "b", left=12, begun=True)
+    # on its own map the taker ends its worker's unit (12 - 2) // 2 = 5 sooner, on the other
+    # (12 - 6) // 2 = 3
+    assert balance.split_order([on_a, on_b], "m2", maps, costs) == [(on_b, 2), (on_a, 6)]
+    assert balance.split_order([on_a, on_b], "m1", maps, costs) == [(on_a, 2), (on_b, 6)]
+    # a fresh worker (no world yet) pays the new world everywhere: the most left first
+    longer = balance.Candidate(1, "b", left=18, begun=True)
+    assert balance.split_order([on_a, longer], None, maps, costs) == [(longer, 6), (on_a, 6)]
+    # much more left elsewhere still wins over the cheaper set-up: (18 - 6) // 2 = 6 > 5
+    assert balance.split_order([on_a, longer], "m1", maps, costs) == [(longer, 6), (on_a, 2)]
+    # a unit not begun, 7 sensor frames, behind 1 frame of its worker's on the same map: its
+    # worker ends it after 1 + 2 + 7 = 10, a taker on another map after 6 + 7 = 13: left alone;
+    # a taker on its map ends it after 2 + 7 = 9, and its worker after 1
+    behind = balance.Candidate(2, "c", left=7, begun=False, ahead=1, follows_its_map=True)
+    assert balance.split_order([behind], "m1", maps, costs) == []
+    assert balance.split_order([behind], "m2", maps, costs) == [(behind, 2)]
+    # behind 12 frames, a taker on another map ends it after 13 against 12 + 2 + 7 = 21
+    far = balance.Candidate(2, "c", left=7, begun=False, ahead=12, follows_its_map=True)
+    assert balance.split_order([far, on_a], "m1", maps, costs) == [(far, 6), (on_a, 2)]
 
 
 def test_a_split_unit_still_gives_the_one_worker_log(
