@@ -112,8 +112,8 @@ def plan_jobs(
     of its map keeps its twin, `sim.world.world_for`), and cut into `workers` runs of equal
     length (no more runs than `shortest_unit`s in the frames). A job is its run's
     pieces of clips, in order; cuts fall on sensor frames, and a cut within
-    `MIN_PIECE_SENSOR_FRAMES` sensor frames of a clip's end moves to that end. Jobs come
-    longest first.
+    `MIN_PIECE_SENSOR_FRAMES` sensor frames of a clip's end moves to that end. A job runs its
+    longest unit last (`_longest_last`). Jobs come longest first.
 
     One job per worker rather than many small units handed out as workers free up: each unit
     costs a world's set-up and a wait for the next, and with a few units a worker the last
@@ -163,7 +163,26 @@ def plan_jobs(
         for job in jobs
         if job
     ]
+    planned = [_longest_last(job, maps) for job in planned]
     return sorted(planned, key=lambda job: -sum(u.frames for u in job))  # stable
+
+
+def _longest_last(job: Job, maps: dict[str, str]) -> Job:
+    """The job's units with its longest last, the units of each map still together (the map of
+    the longest unit's last): an idle worker can split a running unit in halves but takes one
+    not begun whole, so a short unit at a job's end held the end of a 2 Hz run (its worker's
+    set-up and seven sensor frames, on an H100 host, docs/benchmarks.md, "twelfth session")."""
+    if len(job) < 2:
+        return job
+    most = max(u.frames for u in job)
+    longest = next(u for u in reversed(job) if u.frames == most)  # the last of the longest
+    by_map: dict[str, list[WorkUnit]] = {}
+    for unit in job:
+        by_map.setdefault(maps.get(unit.scenario_id, unit.scenario_id), []).append(unit)
+    groups = list(by_map.values())
+    last = next(g for g in groups if longest in g)
+    last.remove(longest)
+    return (*(u for g in groups if g is not last for u in g), *last, longest)
 
 
 def _snapped_cuts(pieces: list[tuple[str, int, int]], count: int, sensor_every: int) -> list[int]:

@@ -36,10 +36,11 @@ def _spans(jobs: list[tuple[WorkUnit, ...]]) -> list[list[tuple[str, int, int, b
 
 
 def test_a_set_is_cut_into_one_equal_job_per_worker_longest_first():
-    # 130 frames on 2 workers: the clips laid end to end and cut at frame 65
+    # 130 frames on 2 workers: the clips laid end to end and cut at frame 65; a job runs its
+    # longest unit last (an idle worker can split it in halves, where it takes a unit whole)
     assert _spans(plan_jobs({"a": 100, "b": 30}, {}, workers=2)) == [
         [("a", 0, 65, False)],
-        [("a", 65, 100, False), ("b", 0, 30, True)],
+        [("b", 0, 30, True), ("a", 65, 100, False)],
     ]
     # one worker: whole clips, longest first, written straight into their logs
     assert plan_jobs({"b": 30, "a": 100}, {}, workers=1) == [
@@ -56,7 +57,7 @@ def test_a_set_is_cut_into_one_equal_job_per_worker_longest_first():
 def test_cuts_fall_on_sensor_frames_and_never_leave_a_sliver():
     # 2 Hz: the cut at frame 202 of 403 moves to the keyframe at 200 (the longer job first)
     assert _spans(plan_jobs({"a": 303, "b": 100}, {}, workers=2, sensor_every=5)) == [
-        [("a", 200, 303, False), ("b", 0, 100, True)],
+        [("b", 0, 100, True), ("a", 200, 303, False)],
         [("a", 0, 200, False)],
     ]
     # 10 Hz: a cut 1 frame before a clip's end moves to that end (no world set up for 1 frame)
@@ -77,13 +78,17 @@ def test_cuts_fall_on_sensor_frames_and_never_leave_a_sliver():
 
 def test_clips_of_one_map_are_laid_next_to_each_other():
     """Clips alternate between two maps; laid map by map, a worker going on to its next clip
-    keeps its twin."""
+    keeps its twin; a job's longest unit goes last with the units of its map."""
     frames = {"a": 30, "b": 30, "c": 30, "d": 30, "e": 60}
     maps = {"a": "m0", "b": "m1", "c": "m0", "d": "m1", "e": "m1"}
     assert _spans(plan_jobs(frames, {}, workers=2, maps=maps)) == [
         [("a", 0, 30, True), ("c", 0, 30, True), ("b", 0, 30, True)],
         [("d", 0, 30, True), ("e", 0, 60, True)],
     ]
+    # the longest last, the units of one map together: not m0, m1, m0
+    assert segments._longest_last(
+        (WorkUnit("a", 0, 10), WorkUnit("c", 0, 50), WorkUnit("b", 0, 20)), maps
+    ) == (WorkUnit("b", 0, 20), WorkUnit("a", 0, 10), WorkUnit("c", 0, 50))
     one = plan_jobs(frames, {}, workers=1, maps=maps)
     assert [u.scenario_id for (u,) in one] == ["e", "a", "c", "b", "d"]
 
@@ -94,7 +99,7 @@ def test_a_rerun_plans_only_the_frames_no_segment_holds():
     assert uncovered(30, []) == [(0, 30)]
     jobs = plan_jobs({"a": 100, "b": 30}, {"a": [(0, 25), (50, 75)]}, workers=2)
     assert _spans(jobs) == [
-        [("a", 25, 50, False), ("a", 75, 90, False)],
+        [("a", 75, 90, False), ("a", 25, 50, False)],
         [("a", 90, 100, False), ("b", 0, 30, True)],
     ]
     # a clip partly done is never whole again, even with one worker: its log comes from segments
