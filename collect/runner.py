@@ -508,10 +508,11 @@ def _run_pool(
     counting a world on the map its own shows (`maps`: each clip's) as a replay; the set-ups
     are measured as the pool runs (`balance.SetupCosts`). A clip's conditions make its frames
     up to 1.3x dearer than another's, so equal shares of frames finish apart, and the pool's
-    wall time is then its even share plus about a world's set-up. A clip whose segments are all done has its log written at once by a thread of this
-    process: writing a log from segments is a copy of their chunks, so it takes no worker and
-    the logs get written while the collection goes on; the thread makes the log's index rows
-    too. `then` runs after the last job, while the workers exit."""
+    wall time is then its even share plus about a world's set-up. A clip whose segments are
+    all done has its log written at once by a thread of this process: writing a log from
+    segments is a copy of their chunks, so it takes no worker and the logs get written while
+    the collection goes on; the thread makes the log's index rows too. `then` runs after the
+    last job, while the workers exit."""
     context = preloading(WORKER_MODULES)
     frames_done = context.Queue()
     started = context.Value("i", 0)

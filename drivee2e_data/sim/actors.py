@@ -127,8 +127,13 @@ def _part_files(model: ModelMesh, folder: Path) -> list[str]:
     return names
 
 
-def create_actor(client: int, blueprint: Blueprint, model: ModelMesh | None = None,
-                 folder: Path | None = None, made: dict[int, int] | None = None) -> int:  # fmt: skip
+def create_actor(
+    client: int,
+    blueprint: Blueprint,
+    model: ModelMesh | None = None,
+    folder: Path | None = None,
+    made: dict[int, int] | None = None,
+) -> int:
     """A pybullet body for the blueprint, its origin at the box centre: its visual shape the
     blueprint's boxes (pybullet's renderers), its collision shape the `model`'s convex parts
     (files written into `folder`) or, without a model, the same boxes. `made`: the client's
