@@ -113,11 +113,10 @@ def geometry_key(model: ModelMesh) -> int:
     return zlib.crc32(model.joints.tobytes(), zlib.crc32(model.positions.tobytes()))
 
 
-def _part_files(model: ModelMesh, folder: Path) -> list[str]:
+def _part_files(model: ModelMesh, folder: Path, key: int) -> list[str]:
     """OBJ files of the model's convex parts (their triangles; pybullet hulls a mesh shape's
-    vertices), written once per shape into `folder`."""
+    vertices), written once per shape (`key`: its `geometry_key`) into `folder`."""
     parts = convex_parts(model)
-    key = geometry_key(model)
     names = []
     for index, part in enumerate(parts):
         path = folder / f"actor_{key:08x}_{index:02d}.obj"
@@ -173,7 +172,7 @@ def create_actor(
         key = geometry_key(model)
         collision = made.get(key) if made is not None else None
         if collision is None:
-            files = _part_files(model, folder)
+            files = _part_files(model, folder, key)
             collision = pybullet.createCollisionShapeArray(
                 shapeTypes=[pybullet.GEOM_MESH] * len(files), fileNames=files,
                 meshScales=[[1.0, 1.0, 1.0]] * len(files), physicsClientId=client,

@@ -342,8 +342,10 @@ class GLRenderer:
         where the CPU draws (`gl_batches.group_defines`: llvmpipe pays for every branch), every
         material's on a GPU, where a branch on a triangle's material costs next to nothing and a
         world compiles two scene programs instead of a dozen (each new world's first frame
-        waited on them)."""
-        return group_defines(group if self.cull else len(MATERIAL_GROUPS), variant)
+        waited on them). The shadow-only casters, where drawn (`draw`'s `casters_drawn`), take
+        every material's too."""
+        every = not self.cull or group == SHADOW_ONLY
+        return group_defines(len(MATERIAL_GROUPS) if every else group, variant)
 
     def _array(self, buffer_name: str, program_key: object):
         """The vertex array feeding a program from the static or dynamic buffer (made once per
@@ -610,8 +612,7 @@ class GLRenderer:
             by_group = not labels and self.cull  # one program for all groups on a GPU
             draws = batches.runs(visible, by_group=by_group, skip=skip, excluded=~detail)
             for group, first, vertices in draws:
-                every = len(MATERIAL_GROUPS) if group == SHADOW_ONLY else group
-                key = "labels" if labels else self._scene_defines(every, program_key)
+                key = "labels" if labels else self._scene_defines(group, program_key)
                 self._array(buffer_name, key).render(moderngl.TRIANGLES, vertices=vertices,
                                                      first=first)  # fmt: skip
 
@@ -723,9 +724,8 @@ class GLRenderer:
                 if shader_look.lamps_on:
                     self._light_texture(shader_look)
                 groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
-                if SHADOW_ONLY in groups and casters_drawn:
-                    groups.add(len(MATERIAL_GROUPS))  # drawn with every material's code
-                groups.discard(SHADOW_ONLY)
+                if not casters_drawn:
+                    groups.discard(SHADOW_ONLY)
                 defines = {self._scene_defines(group, variant) for group in groups}
                 programs = [self._scene_program(key) for key in sorted(defines)]
                 self._apply_look(programs, shader_look, camera_position, far_m,

@@ -334,7 +334,7 @@ def vehicle_model(blueprint: str, size_m: tuple[float, float, float], instance: 
     colours are the shape's, shared with every instance of the blueprint (never written)."""
     shape = vehicle_shape(blueprint, tuple(size_m))
     rng = palette.instance_rng(instance)
-    if blueprint == "minibus" or blueprint in ("bus", "articulated_bus"):
+    if blueprint in ("minibus", "bus", "articulated_bus"):
         paint, cargo = palette.pick(palette.BUS_COLOURS, rng), None
     else:
         paint = palette.car_colour(rng)
