@@ -67,15 +67,19 @@ def test_sigkill_mid_clip_then_rerun_completes_every_log(synthetic_root: Path, t
     process = _start_collector(root, ["--max-frames", "8", "--workers", "1"])
     logs = root / "logs"
 
-    def second_clip_begun() -> bool:
+    first_seen: dict[str, int] = {}
+
+    def second_clip_capturing() -> bool:
+        """The second clip's partial log has grown since the test first saw it: its frames are
+        going in (a fixed wait after its header let a faster collector finish the clip)."""
         partial = list(logs.glob(".*.partial"))
-        return (
-            len(list(logs.glob("*.mcap"))) == 1 and bool(partial) and partial[0].stat().st_size > 0
-        )
+        if len(list(logs.glob("*.mcap"))) != 1 or not partial:
+            return False
+        size = partial[0].stat().st_size
+        return size > first_seen.setdefault(partial[0].name, size)
 
     try:
-        _wait_until(second_clip_begun, process)
-        time.sleep(0.5)  # a few frames into the second clip
+        _wait_until(second_clip_capturing, process)
         os.killpg(process.pid, signal.SIGKILL)
     finally:
         process.wait()
