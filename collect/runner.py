@@ -189,7 +189,8 @@ def run_unit(
 
 class _ClipTracker:
     """Gathers units' results into one result per clip and writes a clip's log from its
-    segments once they are all there (`segments.merge_clip`)."""
+    segments (`segments.SegmentedLog`): appended to as they finish, where a pool runs, and
+    made final once they are all there."""
 
     def __init__(
         self,
@@ -209,6 +210,10 @@ class _ClipTracker:
         self.ready = [s for s, frames in clip_frames.items() if frames and s not in self.waiting]
         for scenario_id in self.ready:
             self.clips[scenario_id] = JobResult(scenario_id, "collected")
+        self.logs = {
+            scenario_id: segments.SegmentedLog(root, scenario_id, options, frames)
+            for scenario_id, frames in clip_frames.items()
+        }
 
     def add(self, unit: WorkUnit) -> None:
         """A unit split off a running one (`_run_pool`): the clip waits for it too."""
@@ -233,11 +238,20 @@ class _ClipTracker:
             return None
         return unit.scenario_id
 
+    def appends(self, unit: WorkUnit, result: JobResult) -> bool:
+        """Whether the unit's finished segment may continue its clip's log before the clip's
+        other units are done (`append`)."""
+        return not unit.whole and result.status == "collected" and result.frames > 0
+
+    def append(self, scenario_id: str) -> None:
+        """Copy the clip's finished segments that continue its log (`SegmentedLog.append`); a
+        pool runs it in a thread of this process while its workers collect the rest."""
+        self.logs[scenario_id].append()
+
     def write_log(self, scenario_id: str) -> JobResult:
-        """The clip's log from its segments (`segments.merge_clip`), then its index rows (kept
-        for `write_index`); a pool runs it in a thread of this process."""
-        frames = self.clip_frames[scenario_id]
-        result = segments.merge_clip(self.root, scenario_id, self.options, frames)
+        """The clip's log made final from its segments (`SegmentedLog.finish`), then its index
+        rows (kept for `write_index`); a pool runs it in a thread of this process."""
+        result = self.logs[scenario_id].finish()
         if result.status == "collected":
             rows = index_rows(self.root, log_path(self.root, scenario_id))
             if rows is not None:
@@ -260,6 +274,11 @@ class _ClipTracker:
 
     def results(self) -> list[JobResult]:
         return list(self.clips.values())
+
+    def close(self) -> None:
+        """Drop the partial logs of clips that did not finish (failed, or the run stopped)."""
+        for log in self.logs.values():
+            log.close()
 
 
 def _add(total: JobResult, part: JobResult) -> None:
@@ -353,6 +372,8 @@ def collect(
                 partial.unlink()  # stopped workers' unfinished logs; finished ones stay
             segments.remove_temporary(root)  # finished segments stay: a rerun resumes them
             raise
+        finally:
+            tracker.close()
         try:
             (logs / segments.SEGMENTS_FOLDER).rmdir()  # every clip's segments merged
         except OSError:
@@ -626,6 +647,8 @@ def _run_pool(
                         world = maps_of.get(unit.scenario_id)
                     if (clip := tracker.finished(unit, result)) is not None:
                         merge(clip)
+                    elif tracker.appends(unit, result):
+                        writers.submit(tracker.append, unit.scenario_id)  # never raises
                 idle_maps.append(world)
             hand_out()
         _drain(frames_done, tick)

@@ -30,6 +30,8 @@ import math
 import os
 import shutil
 import struct
+import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -387,47 +389,133 @@ def collect_segment(
     return run_job(unit.scenario_id, work, unit.start)
 
 
+class SegmentedLog:
+    """A clip's log written from its segment files as they finish. `append` copies the finished
+    segments that continue the log, in frame order, into its partial file and flushes them to
+    disk; `finish` copies the rest, checks that frames 0 to `frames - 1` are there once each and
+    makes the log final. A pool appends while its workers collect the clip's later frames, so the
+    clip's end costs only what its last segments hold (the whole log, 0.1-1 s a clip on an H100
+    host, was written after the run's last frame). Calls from several threads take turns.
+    Nothing is final before `finish`: a crash leaves the partial file, which the next run
+    deletes, and the segments, which it reuses."""
+
+    def __init__(self, root: Path, scenario_id: str, options: CollectOptions, frames: int) -> None:
+        self.root, self.scenario_id, self.options = Path(root), scenario_id, options
+        self.frames = frames
+        self.folder = segments_dir(root, scenario_id)
+        self._lock = threading.Lock()
+        self._writer: LogWriter | None = None
+        self._headers: list[dict] = []  # of the segments copied, in order
+        self._failure: BaseException | None = None  # of an `append`, raised again by `finish`
+        self._closed = False
+        self.seconds = 0.0  # spent appending
+
+    @property
+    def _next(self) -> int:
+        return self._headers[-1]["stop"] if self._headers else 0
+
+    def append(self) -> None:
+        """Copy the finished segments that continue the log. Never raises (it runs beside the
+        pool): a failure is kept, and `finish` reports it."""
+        with self._lock:
+            if self._closed or self._failure is not None:
+                return
+            start = time.perf_counter()
+            try:
+                if self._copy_ready():
+                    self._writer.sync()  # type: ignore[union-attr]
+            except Exception as error:  # reported by `finish`
+                self._failure = error
+                self._discard()
+            self.seconds += time.perf_counter() - start
+
+    def finish(self) -> JobResult:
+        """Copy what is left and make the log final, then delete the segments; the result's
+        frames are 0 (the segments' jobs counted them) and its time is the copying's, appends
+        included."""
+
+        def work(result: JobResult) -> None:
+            if self._failure is not None:
+                raise self._failure
+            self._copy_ready()
+            copied = [(h["start"], h["stop"]) for h in self._headers]
+            left = [(h["start"], h["stop"]) for _, h in finished_segments(
+                self.root, self.scenario_id, self.options)]  # fmt: skip
+            left = [piece for piece in left if piece not in copied]
+            if self._next != self.frames or left:
+                ranges = sorted(copied + left)
+                raise DriveE2EError(
+                    f"{self.folder}: segments {ranges} do not hold frames 0-{self.frames - 1} "
+                    "once each"
+                )
+            assert self._writer is not None  # frames > 0 were copied
+            self._writer.finish()
+            self._writer = None
+            shutil.rmtree(self.folder)
+            result.renderer = self._headers[0]["collection"]["renderer"]
+            result.status = "collected"
+            result.log_bytes = log_path(self.root, self.scenario_id).stat().st_size
+
+        with self._lock:
+            result = run_job(self.scenario_id, work)
+            if result.status != "collected":
+                self._discard()
+            self._closed = True
+            result.seconds += self.seconds
+            return result
+
+    def close(self) -> None:
+        """Drop an unfinished log's partial file (its clip failed, or the run stopped); the
+        segments stay for a rerun."""
+        with self._lock:
+            self._discard()
+            self._closed = True
+
+    def _copy_ready(self) -> bool:
+        """Copy the finished segments that continue the log; whether any was."""
+        found = {h["start"]: (path, h) for path, h in finished_segments(
+            self.root, self.scenario_id, self.options)}  # fmt: skip
+        copied = False
+        while self._next < self.frames and self._next in found:
+            path, header = found[self._next]
+            writer = self._writer or self._open(header)
+            if _records(header) != _records(self._headers[0] if self._headers else header):
+                raise DriveE2EError(
+                    f"{self.folder}: segments made with different renderers or rigs; delete the "
+                    "folder to collect the clip again"
+                )
+            for encoded in read_frames(path, header):
+                writer.write_encoded(encoded)
+            self._headers.append(header)
+            copied = True
+        return copied
+
+    def _open(self, header: dict) -> LogWriter:
+        scenario = store.read_scenario(self.root, self.scenario_id)
+        self._writer = LogWriter(
+            log_path(self.root, self.scenario_id),
+            scenario,
+            store.read_map(self.root, scenario.map_id),
+            configured_rig(self.options.suite()),
+            ego_motion(scenario),
+            header["collection"],
+            header["labels"],
+            sensor_every=self.options.sensor_every,
+        )
+        return self._writer
+
+    def _discard(self) -> None:
+        if self._writer is not None:
+            self._writer.abort()
+            self._writer = None
+
+
+def _records(header: dict) -> str:
+    """A segment's log records (renderer, rig's labels), as one comparable string."""
+    return json.dumps([header["collection"], header["labels"]], sort_keys=True)
+
+
 def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:
     """Write the clip's log from its segment files (which must hold frames 0 to `frames - 1`),
-    then delete them. The result's frames are 0 (the segments' jobs counted them) and its time is
-    the writing's."""
-    root = Path(root)
-
-    def work(result: JobResult) -> None:
-        found = finished_segments(root, scenario_id, options)
-        headers = [h for _, h in found]
-        ranges = [(h["start"], h["stop"]) for h in headers]
-        gaps = uncovered(frames, ranges)
-        if gaps or sum(b - a for a, b in ranges) != frames:
-            raise DriveE2EError(
-                f"{segments_dir(root, scenario_id)}: segments {ranges} do not hold frames "
-                f"0-{frames - 1} once each"
-            )
-        records = {json.dumps([h["collection"], h["labels"]], sort_keys=True) for h in headers}
-        if len(records) != 1:
-            raise DriveE2EError(
-                f"{segments_dir(root, scenario_id)}: segments made with different renderers or "
-                "rigs; delete the folder to collect the clip again"
-            )
-        scenario = store.read_scenario(root, scenario_id)
-        intersection_map = store.read_map(root, scenario.map_id)
-        path = log_path(root, scenario_id)
-        with LogWriter(
-            path,
-            scenario,
-            intersection_map,
-            configured_rig(options.suite()),
-            ego_motion(scenario),
-            headers[0]["collection"],
-            headers[0]["labels"],
-            sensor_every=options.sensor_every,
-        ) as writer:
-            for segment, header in found:
-                for encoded in read_frames(segment, header):
-                    writer.write_encoded(encoded)
-        shutil.rmtree(segments_dir(root, scenario_id))
-        result.renderer = headers[0]["collection"]["renderer"]
-        result.status = "collected"
-        result.log_bytes = path.stat().st_size
-
-    return run_job(scenario_id, work)
+    then delete them (`SegmentedLog.finish`)."""
+    return SegmentedLog(root, scenario_id, options, frames).finish()

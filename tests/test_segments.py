@@ -15,10 +15,11 @@ from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
 from drivee2e_data import store
 from drivee2e_data.cli import main
 from drivee2e_data.collect import balance, host, runner, segments
-from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.job import CollectOptions, log_path
 from drivee2e_data.collect.runner import collect
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.logs.writer import partial_path
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
 
 # what the CLI makes of SMALL_COLLECT on this machine (depth LiDAR where GL works)
@@ -135,6 +136,62 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
     assert not folder.exists()  # the segments go once the log is written
+
+
+def test_a_log_grows_as_its_segments_finish_and_ends_the_same_as_one_workers(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    """A pool appends each finished segment that continues the clip's log (`SegmentedLog`):
+    a segment that does not continue it waits; the partial log grows by what is copied; the
+    finished log equals one worker's."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    log = segments.SegmentedLog(root, scenario_id, options, LONG_CLIP_FRAMES)
+    partial = partial_path(log_path(root, scenario_id))
+    sizes = []
+    for start, stop in ((24, 36), (0, 12), (12, 24)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+        log.append()
+        sizes.append(partial.stat().st_size if partial.exists() else 0)
+    assert sizes[0] == 0  # frames 24-35 do not continue an empty log
+    assert 0 < sizes[1] < sizes[2]  # frames 0-11, then 12-35
+    result = log.finish()
+    assert result.status == "collected", result.error
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert log_path(root, scenario_id).read_bytes() == alone.read_bytes()
+    assert not partial.exists() and not segments.segments_dir(root, scenario_id).exists()
+
+
+def test_a_failed_append_is_reported_when_the_log_is_finished(
+    synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """An append runs beside the pool and never raises: its error fails the clip at `finish`,
+    and neither a log nor a partial one stays; the segments stay for a rerun. `close` drops an
+    unfinished log's partial file."""
+    scenario_id = store.scenario_ids(synthetic_root)[1]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=6)
+    for start, stop in ((0, 3), (3, 6)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+    partial = partial_path(log_path(root, scenario_id))
+    unfinished = segments.SegmentedLog(root, scenario_id, options, 6)
+    unfinished.append()
+    assert partial.exists()
+    unfinished.close()
+    assert not partial.exists()
+
+    def failing(path: Path, header: dict | None = None):  # type: ignore[no-untyped-def]
+        raise OSError(f"{path}: the disk went away")
+
+    monkeypatch.setattr(segments, "read_frames", failing)
+    log = segments.SegmentedLog(root, scenario_id, options, 6)
+    log.append()  # does not raise
+    result = log.finish()
+    assert result.status == "failed"
+    assert result.error.startswith("OSError: ") and "the disk went away" in result.error
+    assert not partial.exists() and not log_path(root, scenario_id).exists()
+    assert len(list(segments.segments_dir(root, scenario_id).glob("*.segment"))) == 2
 
 
 def test_a_crashed_run_resumes_from_its_finished_segments(

@@ -294,6 +294,12 @@ class LogWriter:
         self._file.close()
         os.replace(self.partial, self.path)
 
+    def sync(self) -> None:
+        """What was written so far, flushed to disk (the log is still partial): `finish` then
+        waits only on what came after."""
+        self._file.flush()
+        os.fdatasync(self._file.fileno())
+
     def abort(self) -> None:
         self._file.close()
         self.partial.unlink(missing_ok=True)
