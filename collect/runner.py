@@ -163,7 +163,7 @@ def _plan(
         for path, header in segments.finished_segments(root, scenario_id, options):
             start, stop = header["start"], header["stop"]
             if stop > frames or any(start < b and a < stop for a, b in kept):
-                path.unlink()  # made for a longer --max-frames, or overlapping: redone
+                segments.discard(path)  # made for a longer --max-frames, or overlapping: redone
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept

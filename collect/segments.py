@@ -1,14 +1,18 @@
 """Work smaller than a set of clips: the set's frames laid end to end and cut into one equal job
 per worker (`plan_jobs`), so a job is a run of pieces of clips. A piece that is not a whole clip
-is a segment, written as a segment file of finished (compressed, indexed) MCAP chunks, and the
-clip's log is written from its segments once all are there, a copy of their chunks. The log is
-byte for byte the one a single worker writes for the clip: the same chunks
-(`FrameEncoder.encode`) in the same order, and a frame's capture depends on nothing but the
-frame (`SensorSuite.capture` poses the world from the log).
+is a segment. The segment that begins a clip is its log's head: the log's own bytes so far,
+written by `LogWriter` as a single worker writes them, left without its summary (`_write_head`).
+A later segment is a segment file of finished (compressed, indexed) MCAP chunks. The clip's log
+is the head with the later segments' chunks appended as they finish (`SegmentedLog`), and its
+summary once all are there. The log is byte for byte the one a single worker writes for the
+clip: the same chunks (`FrameEncoder.encode`) in the same order, and a frame's capture depends
+on nothing but the frame (`SensorSuite.capture` poses the world from the log).
 
 Segment files live in `logs/.segments/<scenario_id>/<start>-<stop>.segment`, written under a
 temporary name and renamed when whole, so a crash keeps every finished segment and a rerun
-collects only the frames no segment holds. A segment records the options it was made with; one
+collects only the frames no segment holds. A head is `<start>-<stop>.head` beside its sidecar
+`<start>-<stop>.head.json` (its header and the writer's state, `LogWriter.suspend`), written
+last: a head without one is unfinished. A segment records the options it was made with; one
 made with other options is dropped.
 
 A segment may end before the frames it was planned for: a worker that ran out of work takes
@@ -32,7 +36,7 @@ import shutil
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -40,6 +44,7 @@ from typing import BinaryIO
 from drivee2e_data import __version__, store
 from drivee2e_data.collect.job import (
     LOGS_FOLDER,
+    ClipSetup,
     CollectOptions,
     JobResult,
     capture_frames,
@@ -56,6 +61,8 @@ from drivee2e_data.sensors.suite import configured_rig
 SEGMENTS_FOLDER = ".segments"
 SUFFIX = ".segment"
 TEMPORARY_SUFFIX = ".segment-tmp"
+HEAD_SUFFIX = ".head"  # a clip's first segment: its log's head (`_write_head`)
+SIDECAR_SUFFIX = ".json"  # beside a head: its header and the log writer's state
 MAGIC, END = b"DE2ESEG2", b"END!"  # 2: chunks; 1 (raw messages) is collected again
 # a unit's fixed cost is setting up its clip's world (0.4-1 s here, 1.9 s on a loaded H100
 # host, docs/benchmarks.md) against 0.1-0.5 s a sensor frame per worker: no worker's share of a
@@ -237,9 +244,10 @@ def segments_dir(root: Path, scenario_id: str) -> Path:
 def finished_segments(
     root: Path, scenario_id: str, options: CollectOptions
 ) -> list[tuple[Path, dict]]:
-    """The clip's whole segment files made with `options` and their headers (`start`, `stop`,
-    the log's records), by first frame; others (made with other options, or unreadable) are
-    deleted, since nothing can use them."""
+    """The clip's whole segment files and heads made with `options` and their headers (`start`,
+    `stop`, the log's records; a head's also its writer's state under "head"), by first frame;
+    others (made with other options, or unreadable) are deleted, since nothing can use them. A
+    head without its sidecar is not yet whole, and left alone (`remove_temporary`)."""
     folder = segments_dir(root, scenario_id)
     if not folder.is_dir():
         return []
@@ -254,13 +262,36 @@ def finished_segments(
             path.unlink()
             continue
         kept.append((path, header))
-    return kept
+    for sidecar in sorted(folder.glob(f"*{HEAD_SUFFIX}{SIDECAR_SUFFIX}")):
+        head = sidecar.with_name(sidecar.name.removesuffix(SIDECAR_SUFFIX))
+        try:
+            header = json.loads(sidecar.read_text())
+            whole = head.stat().st_size >= header["head"]["data_end"]
+        except (OSError, ValueError, KeyError, TypeError):
+            header, whole = None, False
+        if header is None or not whole or header["fingerprint"] != wanted:
+            discard(head)
+            continue
+        kept.append((head, header))
+    return sorted(kept, key=lambda found: found[1]["start"])
+
+
+def discard(path: Path) -> None:
+    """Delete a segment file, or a head and its sidecar."""
+    path.unlink(missing_ok=True)
+    if path.name.endswith(HEAD_SUFFIX):
+        path.with_name(path.name + SIDECAR_SUFFIX).unlink(missing_ok=True)
 
 
 def remove_temporary(root: Path) -> None:
-    """A crashed or stopped run's unfinished segment files (their frames are collected again)."""
-    for path in (Path(root) / LOGS_FOLDER / SEGMENTS_FOLDER).glob(f"*/*{TEMPORARY_SUFFIX}"):
+    """A crashed or stopped run's unfinished segment files and heads (their frames are
+    collected again)."""
+    folders = Path(root) / LOGS_FOLDER / SEGMENTS_FOLDER
+    for path in folders.glob(f"*/*{TEMPORARY_SUFFIX}"):
         path.unlink()
+    for head in folders.glob(f"*/*{HEAD_SUFFIX}"):
+        if not head.with_name(head.name + SIDECAR_SUFFIX).exists():
+            head.unlink()
 
 
 # ---------------------------------------------------------------------------- the file format
@@ -349,55 +380,128 @@ def collect_segment(
             root, unit.scenario_id, options, range(unit.start, unit.stop), result.stage_seconds
         )
         result.renderer = setup.world.renderer
-        encoder = FrameEncoder(
-            setup.world.scenario,
-            setup.world.intersection_map,
-            setup.suite.rig,
-            setup.suite.motion,
-            camera_label_kinds=label_kinds(setup.labels),
-        )
         folder.mkdir(parents=True, exist_ok=True)
-        temporary = folder / f"{unit.name}.{os.getpid()}{TEMPORARY_SUFFIX}"
-        try:
-            with open(temporary, "wb") as stream:
-                stream.write(MAGIC)
-                result.frames = capture_frames(
-                    setup,
-                    itertools.chain([first], frames),
-                    result.stage_seconds,
-                    lambda frame: _write_frame(stream, encoder.encode(frame)),
-                    on_frame,
-                    options.sensor_every,
-                )
-                done = WorkUnit(unit.scenario_id, unit.start, unit.start + result.frames)
-                header = {
-                    "scenario_id": unit.scenario_id,
-                    "start": done.start,
-                    "stop": done.stop,
-                    "fingerprint": fingerprint(options),
-                    "collection": setup.collection,
-                    "labels": setup.labels,
-                }
-                data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
-                stream.write(data + _TRAILER.pack(len(data), END))
-                stream.flush()
-                os.fsync(stream.fileno())
-            os.replace(temporary, folder / f"{done.name}{SUFFIX}")
-        finally:
-            temporary.unlink(missing_ok=True)
+        header = {
+            "scenario_id": unit.scenario_id,
+            "start": unit.start,
+            "fingerprint": fingerprint(options),
+            "collection": setup.collection,
+            "labels": setup.labels,
+        }
+        # the clip's first frames become its log's head; later ones a segment file
+        write = _write_head if unit.start == 0 else _write_segment
+        frames_left = itertools.chain([first], frames)
+        result.frames = write(
+            root, folder, unit, setup, header, frames_left, result, options, on_frame
+        )
 
     return run_job(unit.scenario_id, work, unit.start)
 
 
+def _write_segment(
+    root: Path,
+    folder: Path,
+    unit: WorkUnit,
+    setup: ClipSetup,
+    header: dict,
+    frames: Iterable[int],
+    result: JobResult,
+    options: CollectOptions,
+    on_frame: Callable[[int], None] | None,
+) -> int:
+    """Capture `frames` into a segment file named for the frames it holds; returns how many."""
+    encoder = FrameEncoder(
+        setup.world.scenario,
+        setup.world.intersection_map,
+        setup.suite.rig,
+        setup.suite.motion,
+        camera_label_kinds=label_kinds(setup.labels),
+    )
+    temporary = folder / f"{unit.name}.{os.getpid()}{TEMPORARY_SUFFIX}"
+    try:
+        with open(temporary, "wb") as stream:
+            stream.write(MAGIC)
+            count = capture_frames(
+                setup,
+                frames,
+                result.stage_seconds,
+                lambda frame: _write_frame(stream, encoder.encode(frame)),
+                on_frame,
+                options.sensor_every,
+            )
+            header["stop"] = unit.start + count
+            data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
+            stream.write(data + _TRAILER.pack(len(data), END))
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, folder / f"{_name(unit.start, header['stop'])}{SUFFIX}")
+    finally:
+        temporary.unlink(missing_ok=True)
+    return count
+
+
+def _write_head(
+    root: Path,
+    folder: Path,
+    unit: WorkUnit,
+    setup: ClipSetup,
+    header: dict,
+    frames: Iterable[int],
+    result: JobResult,
+    options: CollectOptions,
+    on_frame: Callable[[int], None] | None,
+) -> int:
+    """Capture `frames` (from the clip's first) as the head of the clip's log: the log's own
+    bytes so far, written by `LogWriter` as a one-worker run writes them, moved into the clip's
+    segment folder with its state in a sidecar (`HEAD_SUFFIX`, `SIDECAR_SUFFIX`), so that the
+    log is finished by appending the later segments to it rather than by copying the head (a
+    clip's first segment, often most of it, had been copied after the run's last frame)."""
+    writer = LogWriter(
+        log_path(root, unit.scenario_id),
+        setup.world.scenario,
+        setup.world.intersection_map,
+        setup.suite.rig,
+        setup.suite.motion,
+        setup.collection,
+        setup.labels,
+        sensor_every=options.sensor_every,
+    )
+    try:
+        count = capture_frames(
+            setup, frames, result.stage_seconds, writer.write, on_frame, options.sensor_every
+        )
+        header["stop"] = unit.start + count
+        head = folder / f"{_name(unit.start, header['stop'])}{HEAD_SUFFIX}"
+        header["head"] = writer.suspend(head)
+    except BaseException:
+        writer.abort()
+        raise
+    sidecar = head.with_name(head.name + SIDECAR_SUFFIX)
+    temporary = sidecar.with_name(f"{sidecar.name}.{os.getpid()}{TEMPORARY_SUFFIX}")
+    with open(temporary, "w") as stream:
+        json.dump(header, stream)
+        stream.flush()
+        os.fsync(stream.fileno())
+    os.replace(temporary, sidecar)  # the head is finished once its sidecar is there
+    return count
+
+
+def _name(start: int, stop: int) -> str:
+    return WorkUnit("", start, stop).name
+
+
 class SegmentedLog:
-    """A clip's log written from its segment files as they finish. `append` copies the finished
-    segments that continue the log, in frame order, into its partial file and flushes them to
-    disk; `finish` copies the rest, checks that frames 0 to `frames - 1` are there once each and
-    makes the log final. A pool appends while its workers collect the clip's later frames, so the
-    clip's end costs only what its last segments hold (the whole log, 0.1-1 s a clip on an H100
-    host, was written after the run's last frame). Calls from several threads take turns.
-    Nothing is final before `finish`: a crash leaves the partial file, which the next run
-    deletes, and the segments, which it reuses."""
+    """A clip's log written from its head and segment files as they finish. `append` resumes
+    the head (`LogWriter.resume`) and copies the finished segments that continue the log, in
+    frame order, onto it, flushed to disk; `finish` copies the rest, checks that frames 0 to
+    `frames - 1` are there once each and makes the log final (the head moved to the log's
+    name). A pool appends while its workers collect the clip's later frames, so the clip's end
+    costs only what its last segments hold (the whole log had been copied after the run's last
+    frame: 0.1-1 s a clip at 2 Hz on an H100 host, 2.6-2.9 s at 10 Hz). Calls from several
+    threads take turns. Nothing is final before `finish`: a crash leaves the head with what was
+    appended (cut off when it is resumed again) and the segments, which the next run reuses.
+    Logs of segments without a head (an earlier version's) are written new: a partial file,
+    deleted by the next run after a crash."""
 
     def __init__(self, root: Path, scenario_id: str, options: CollectOptions, frames: int) -> None:
         self.root, self.scenario_id, self.options = Path(root), scenario_id, options
@@ -478,30 +582,36 @@ class SegmentedLog:
         copied = False
         while self._next < self.frames and self._next in found:
             path, header = found[self._next]
-            writer = self._writer or self._open(header)
             if _records(header) != _records(self._headers[0] if self._headers else header):
                 raise DriveE2EError(
                     f"{self.folder}: segments made with different renderers or rigs; delete the "
                     "folder to collect the clip again"
                 )
-            for encoded in read_frames(path, header):
-                writer.write_encoded(encoded)
+            if "head" in header:  # the log's own first frames: continued, not copied
+                self._open(header, head=path)
+            else:
+                writer = self._writer or self._open(header)
+                for encoded in read_frames(path, header):
+                    writer.write_encoded(encoded)
             self._headers.append(header)
             copied = True
         return copied
 
-    def _open(self, header: dict) -> LogWriter:
+    def _open(self, header: dict, head: Path | None = None) -> LogWriter:
+        """The log's writer: a new one from the first segment's records, or the `head`'s
+        resumed."""
         scenario = store.read_scenario(self.root, self.scenario_id)
-        self._writer = LogWriter(
-            log_path(self.root, self.scenario_id),
-            scenario,
-            store.read_map(self.root, scenario.map_id),
-            configured_rig(self.options.suite()),
-            ego_motion(scenario),
-            header["collection"],
-            header["labels"],
-            sensor_every=self.options.sensor_every,
-        )
+        clip = (scenario, store.read_map(self.root, scenario.map_id),
+                configured_rig(self.options.suite()), ego_motion(scenario))  # fmt: skip
+        path, every = log_path(self.root, self.scenario_id), self.options.sensor_every
+        if head is not None:
+            self._writer = LogWriter.resume(
+                head, path, header["head"], *clip, header["labels"], sensor_every=every
+            )
+        else:
+            self._writer = LogWriter(
+                path, *clip, header["collection"], header["labels"], sensor_every=every
+            )
         return self._writer
 
     def _discard(self) -> None:

@@ -237,9 +237,9 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     synthetic_root: Path, tmp_path: Path
 ):
     """Three 60-frame clips on two workers: the first clip and half the second for one, the
-    second's other half and the third for the other, each piece a segment. Ctrl-C while both
-    write one leaves neither unfinished segment file nor any partial log, nor the workers' twin
-    meshes in the temp folder."""
+    second's other half and the third for the other, each piece a segment (a clip's first, its
+    log's head, written as a partial log). Ctrl-C while both write one leaves neither unfinished
+    segment file nor any partial log, nor the workers' twin meshes in the temp folder."""
     ids = store.scenario_ids(synthetic_root)[6:9]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
     temporary = tmp_path / "tmp"
@@ -248,7 +248,7 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     logs = root / "logs"
     unfinished = ".segments/*/*.segment-tmp"
     partial = ".*.partial"
-    _wait_until(lambda: len(list(logs.glob(unfinished))) == 2, process)
+    _wait_until(lambda: len([*logs.glob(unfinished), *logs.glob(partial)]) == 2, process)
     os.killpg(process.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
     try:
         _, err = process.communicate(timeout=30)  # not after the clips still to do

@@ -19,7 +19,6 @@ from drivee2e_data.collect.job import CollectOptions, log_path
 from drivee2e_data.collect.runner import collect
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.logs.writer import partial_path
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
 
 # what the CLI makes of SMALL_COLLECT on this machine (depth LiDAR where GL works)
@@ -120,7 +119,9 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
     """The first clip, 36 frames collected alone by `collected_root`; here three segments made
-    in this process (the middle one first, as another worker might), then the log written."""
+    in this process (the middle one first, as another worker might), then the log written: the
+    first is the log's head (its bytes as the log begins, and a sidecar), the others are
+    appended to it."""
     scenario_id = store.scenario_ids(synthetic_root)[0]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
@@ -129,7 +130,8 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
         assert (result.status, result.frames) == ("collected", stop - start), result.error
     folder = segments.segments_dir(root, scenario_id)
     assert sorted(p.name for p in folder.iterdir()) == [
-        "000000-000012.segment", "000012-000024.segment", "000024-000036.segment",
+        "000000-000012.head", "000000-000012.head.json", "000012-000024.segment",
+        "000024-000036.segment",
     ]  # fmt: skip
     merged = segments.merge_clip(root, scenario_id, options, LONG_CLIP_FRAMES)
     assert merged.status == "collected", merged.error
@@ -138,60 +140,71 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
     assert not folder.exists()  # the segments go once the log is written
 
 
-def test_a_log_grows_as_its_segments_finish_and_ends_the_same_as_one_workers(
+def test_a_log_grows_from_its_head_as_its_segments_finish_and_ends_the_same_as_one_workers(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
-    """A pool appends each finished segment that continues the clip's log (`SegmentedLog`):
-    a segment that does not continue it waits; the partial log grows by what is copied; the
-    finished log equals one worker's."""
+    """The clip's first segment is its log's head, written as the log begins; a pool appends each
+    finished segment that continues it (`SegmentedLog`): a segment that does not continue it
+    waits; the head is grown in place, never copied; the finished log equals one worker's."""
     scenario_id = store.scenario_ids(synthetic_root)[0]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
     log = segments.SegmentedLog(root, scenario_id, options, LONG_CLIP_FRAMES)
-    partial = partial_path(log_path(root, scenario_id))
+    head = segments.segments_dir(root, scenario_id) / "000000-000012.head"
     sizes = []
     for start, stop in ((24, 36), (0, 12), (12, 24)):
         assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+        if start == 0:
+            written = head.stat().st_size
         log.append()
-        sizes.append(partial.stat().st_size if partial.exists() else 0)
-    assert sizes[0] == 0  # frames 24-35 do not continue an empty log
-    assert 0 < sizes[1] < sizes[2]  # frames 0-11, then 12-35
+        sizes.append(head.stat().st_size if head.exists() else 0)
+    assert sizes[0] == 0  # frames 24-35 do not continue a log not begun
+    assert sizes[1] == written  # the head is the log so far: nothing to copy
+    assert sizes[2] > written  # frames 12-35 appended to it
+    assert not list((root / "logs").glob(".*.partial"))  # no second copy of the log
     result = log.finish()
     assert result.status == "collected", result.error
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert log_path(root, scenario_id).read_bytes() == alone.read_bytes()
-    assert not partial.exists() and not segments.segments_dir(root, scenario_id).exists()
+    assert not segments.segments_dir(root, scenario_id).exists()
 
 
-def test_a_failed_append_is_reported_when_the_log_is_finished(
-    synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_a_failed_append_is_reported_when_the_log_is_finished_and_the_head_is_kept(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):
     """An append runs beside the pool and never raises: its error fails the clip at `finish`,
-    and neither a log nor a partial one stays; the segments stay for a rerun. `close` drops an
-    unfinished log's partial file."""
+    and no log is made. The head, grown by an append that was not finished, is cut back to its
+    own frames when resumed again, and the log then equals one worker's."""
     scenario_id = store.scenario_ids(synthetic_root)[1]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=6)
     for start, stop in ((0, 3), (3, 6)):
         assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
-    partial = partial_path(log_path(root, scenario_id))
+    head = segments.segments_dir(root, scenario_id) / "000000-000003.head"
+    own = head.stat().st_size
     unfinished = segments.SegmentedLog(root, scenario_id, options, 6)
     unfinished.append()
-    assert partial.exists()
-    unfinished.close()
-    assert not partial.exists()
+    assert head.stat().st_size > own  # frames 3-5 appended
+    unfinished.close()  # the run stopped: the head and the segments stay
+    assert head.exists()
 
     def failing(path: Path, header: dict | None = None):  # type: ignore[no-untyped-def]
         raise OSError(f"{path}: the disk went away")
 
-    monkeypatch.setattr(segments, "read_frames", failing)
-    log = segments.SegmentedLog(root, scenario_id, options, 6)
-    log.append()  # does not raise
-    result = log.finish()
+    with monkeypatch.context() as patched:
+        patched.setattr(segments, "read_frames", failing)
+        log = segments.SegmentedLog(root, scenario_id, options, 6)
+        log.append()  # does not raise
+        result = log.finish()
     assert result.status == "failed"
     assert result.error.startswith("OSError: ") and "the disk went away" in result.error
-    assert not partial.exists() and not log_path(root, scenario_id).exists()
-    assert len(list(segments.segments_dir(root, scenario_id).glob("*.segment"))) == 2
+    assert not log_path(root, scenario_id).exists()
+    assert head.stat().st_size == own  # cut back to the head's own frames
+    assert len(segments.finished_segments(root, scenario_id, options)) == 2
+    again = segments.SegmentedLog(root, scenario_id, options, 6).finish()
+    assert again.status == "collected", again.error
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert log_path(root, scenario_id).read_bytes() == alone.read_bytes()
 
 
 def test_a_crashed_run_resumes_from_its_finished_segments(
@@ -205,6 +218,12 @@ def test_a_crashed_run_resumes_from_its_finished_segments(
     options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
     assert segments.collect_segment(root, WorkUnit(scenario_id, 0, 20), options).frames == 20
     folder = segments.segments_dir(root, scenario_id)
+    (folder / "000020-000036.4242.segment-tmp").write_bytes(b"DE2ESEG1 cut short")
+    orphan = folder / "000000-000009.head"  # a head whose worker died before its sidecar
+    orphan.write_bytes(b"\x89MCAP0\r\n cut short")
+    segments.remove_temporary(root)
+    assert sorted(p.name for p in folder.iterdir()) == ["000000-000020.head",
+                                                        "000000-000020.head.json"]  # fmt: skip
     (folder / "000020-000036.4242.segment-tmp").write_bytes(b"DE2ESEG1 cut short")
     other = dataclasses.replace(options, jpeg_quality=50)
     assert segments.collect_segment(root, WorkUnit(scenario_id, 20, 28), other).frames == 8
@@ -254,12 +273,13 @@ def test_segments_that_do_not_make_the_clip_are_a_clear_error(synthetic_root: Pa
     scenario_id = store.scenario_ids(synthetic_root)[1]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=6)
-    assert segments.collect_segment(root, WorkUnit(scenario_id, 0, 3), options).frames == 3
+    for start, stop in ((0, 3), (4, 6)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
     result = segments.merge_clip(root, scenario_id, options, 6)
     assert result.status == "failed"
-    assert "segments [(0, 3)] do not hold frames 0-5 once each" in result.error
+    assert "segments [(0, 3), (4, 6)] do not hold frames 0-5 once each" in result.error
     assert not (root / "logs" / f"{scenario_id}.mcap").exists()
-    path = segments.segments_dir(root, scenario_id) / "000000-000003.segment"
+    path = segments.segments_dir(root, scenario_id) / "000004-000006.segment"
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])  # cut short: not whole
     with pytest.raises(DriveE2EError, match=r"ends early|no end marker"):

@@ -6,6 +6,7 @@ footer. Readers find every message through the chunk indexes as with any indexed
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 import zlib
 from collections import defaultdict
@@ -50,6 +51,38 @@ class McapContainer:
         )
         stream.write(MCAP0_MAGIC)
         self._write(Header(profile="", library=library), *channels.schemas, *channels.channels)
+
+    @classmethod
+    def resumed(cls, stream: BinaryIO, channels: ChannelTable, state: dict) -> McapContainer:
+        """A container that continues a file another one wrote up to `state` (its `state()`),
+        with `stream` open at the end of what that one wrote: `finish` then writes the summary
+        the first would have written."""
+        container = cls.__new__(cls)
+        container.stream, container.table = stream, channels
+        container.chunk_indexes = [
+            ChunkIndex(
+                **{**index, "message_index_offsets": _int_keys(index["message_index_offsets"])}
+            )
+            for index in state["chunk_indexes"]
+        ]
+        container.metadata_indexes = [MetadataIndex(**index) for index in state["metadata_indexes"]]
+        statistics = dict(state["statistics"])
+        counts = defaultdict(int, _int_keys(statistics.pop("channel_message_counts")))
+        container.statistics = Statistics(**statistics, channel_message_counts=counts)
+        return container
+
+    def state(self) -> dict:
+        """What `resumed` needs to continue the file (JSON-ready): the indexes and statistics
+        of what was written."""
+        return {
+            "chunk_indexes": [dataclasses.asdict(index) for index in self.chunk_indexes],
+            "metadata_indexes": [dataclasses.asdict(index) for index in self.metadata_indexes],
+            "statistics": {
+                field.name: getattr(self.statistics, field.name)
+                for field in dataclasses.fields(self.statistics)
+            }
+            | {"channel_message_counts": dict(self.statistics.channel_message_counts)},
+        }
 
     def _write(self, *records: McapRecord) -> int:
         """Write records at the current position; returns how many bytes."""
@@ -133,3 +166,8 @@ class McapContainer:
             )
         )
         self.stream.write(MCAP0_MAGIC)
+
+
+def _int_keys(mapping: dict) -> dict[int, int]:
+    """A channel-id map read back from JSON (its keys became strings), in its order."""
+    return {int(key): value for key, value in mapping.items()}

@@ -259,6 +259,41 @@ class LogWriter:
             self._container.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
         self.t_ns: list[int] = []  # of the frames written
         self.first_frame = first_frame
+        self._owns_file = True  # `abort` deletes it (not a resumed head: `resume`)
+
+    @classmethod
+    def resume(
+        cls,
+        head: Path,
+        path: Path,
+        state: dict,
+        scenario: Scenario,
+        intersection_map: IntersectionMap,
+        rig: Rig,
+        motion: EgoMotion,
+        camera_labels: dict[str, str] | None = None,
+        sensor_every: int = 1,
+    ) -> LogWriter:
+        """Continue the log whose head another writer left at `head` (`suspend`, which gave
+        `state`); anything after the head's end (an earlier resume that did not finish) is cut
+        off. `finish` then moves the file to `path`; `abort` leaves the head as it was made
+        to be resumed again."""
+        writer = cls.__new__(cls)
+        writer.path, writer.partial = path, head
+        writer.sensor_every = sensor_every
+        writer.first_frame = state["first_frame"]
+        writer.encoder = FrameEncoder(
+            scenario, intersection_map, rig, motion, writer.first_frame, label_kinds(camera_labels)
+        )
+        writer._file = open(head, "r+b")
+        writer._file.truncate(state["data_end"])
+        writer._file.seek(state["data_end"])
+        writer._container = McapContainer.resumed(
+            writer._file, writer.encoder.channels, state["container"]
+        )
+        writer.t_ns = list(state["t_ns"])
+        writer._owns_file = False
+        return writer
 
     def write(self, frame: SensorFrame | StateFrame) -> None:
         """All topics of one frame, each with log time and publish time = the frame's time."""
@@ -300,9 +335,26 @@ class LogWriter:
         self._file.flush()
         os.fdatasync(self._file.fileno())
 
+    def suspend(self, head: Path) -> dict:
+        """Stop with the log unfinished: what was written (the log's head: every record up to
+        the last frame's chunks, no summary) flushed to disk and moved to `head`; returns the
+        state `resume` continues from (JSON-ready)."""
+        state = {
+            "data_end": self._file.tell(),
+            "first_frame": self.first_frame,
+            "t_ns": self.t_ns,
+            "container": self._container.state(),
+        }
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self.partial, head)
+        return state
+
     def abort(self) -> None:
         self._file.close()
-        self.partial.unlink(missing_ok=True)
+        if self._owns_file:
+            self.partial.unlink(missing_ok=True)
 
     def __enter__(self) -> LogWriter:
         return self
