@@ -234,16 +234,7 @@ def collect_clip(
         result.renderer = setup.world.renderer
         scenario = setup.world.scenario
         frames = range(planned_frames(scenario.num_frames, options.max_frames))
-        with LogWriter(
-            path,
-            scenario,
-            setup.world.intersection_map,
-            setup.suite.rig,
-            setup.suite.motion,
-            setup.collection,
-            setup.labels,
-            sensor_every=options.sensor_every,
-        ) as writer:
+        with log_writer(path, setup, options) as writer:
             result.frames = capture_frames(
                 setup, frames, result.stage_seconds, writer.write, on_frame, options.sensor_every
             )
@@ -251,6 +242,21 @@ def collect_clip(
         result.log_bytes = path.stat().st_size
 
     return run_job(scenario_id, work)
+
+
+def log_writer(path: Path, setup: ClipSetup, options: CollectOptions) -> LogWriter:
+    """The writer of a clip's log at `path`, for the clip `setup` made, as every run writes it
+    (one worker's, or a pool's head: `segments._write_head`)."""
+    return LogWriter(
+        path,
+        setup.world.scenario,
+        setup.world.intersection_map,
+        setup.suite.rig,
+        setup.suite.motion,
+        setup.collection,
+        setup.labels,
+        sensor_every=options.sensor_every,
+    )
 
 
 def run_job(scenario_id: str, work: Callable[[JobResult], None], first_frame: int = 0) -> JobResult:

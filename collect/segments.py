@@ -36,7 +36,7 @@ import shutil
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -49,6 +49,7 @@ from drivee2e_data.collect.job import (
     JobResult,
     capture_frames,
     log_path,
+    log_writer,
     open_clip,
     run_job,
 )
@@ -388,28 +389,38 @@ def collect_segment(
             "collection": setup.collection,
             "labels": setup.labels,
         }
-        # the clip's first frames become its log's head; later ones a segment file
-        write = _write_head if unit.start == 0 else _write_segment
         frames_left = itertools.chain([first], frames)
-        result.frames = write(
-            root, folder, unit, setup, header, frames_left, result, options, on_frame
-        )
+
+        def capture(encode: Callable) -> int:
+            seconds, every = result.stage_seconds, options.sensor_every
+            return capture_frames(setup, frames_left, seconds, encode, on_frame, every)
+
+        # the clip's first frames become its log's head; later ones a segment file
+        piece = _Piece(Path(root), unit, setup, options, header, capture)
+        result.frames = _write_head(piece) if unit.start == 0 else _write_segment(piece)
 
     return run_job(unit.scenario_id, work, unit.start)
 
 
-def _write_segment(
-    root: Path,
-    folder: Path,
-    unit: WorkUnit,
-    setup: ClipSetup,
-    header: dict,
-    frames: Iterable[int],
-    result: JobResult,
-    options: CollectOptions,
-    on_frame: Callable[[int], None] | None,
-) -> int:
-    """Capture `frames` into a segment file named for the frames it holds; returns how many."""
+@dataclass(frozen=True)
+class _Piece:
+    """A unit being collected: its clip's set-up, the options, its header so far (`stop` is
+    added once its frames are known) and `capture(encode)`, which captures its frames, handing
+    each to `encode`, and returns how many."""
+
+    root: Path
+    unit: WorkUnit
+    setup: ClipSetup
+    options: CollectOptions
+    header: dict
+    capture: Callable[[Callable], int]
+
+
+def _write_segment(piece: _Piece) -> int:
+    """Capture the piece's frames into a segment file named for the frames it holds; returns
+    how many."""
+    setup, unit, header = piece.setup, piece.unit, piece.header
+    folder = segments_dir(piece.root, unit.scenario_id)
     encoder = FrameEncoder(
         setup.world.scenario,
         setup.world.intersection_map,
@@ -421,14 +432,7 @@ def _write_segment(
     try:
         with open(temporary, "wb") as stream:
             stream.write(MAGIC)
-            count = capture_frames(
-                setup,
-                frames,
-                result.stage_seconds,
-                lambda frame: _write_frame(stream, encoder.encode(frame)),
-                on_frame,
-                options.sensor_every,
-            )
+            count = piece.capture(lambda frame: _write_frame(stream, encoder.encode(frame)))
             header["stop"] = unit.start + count
             data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
             stream.write(data + _TRAILER.pack(len(data), END))
@@ -440,37 +444,19 @@ def _write_segment(
     return count
 
 
-def _write_head(
-    root: Path,
-    folder: Path,
-    unit: WorkUnit,
-    setup: ClipSetup,
-    header: dict,
-    frames: Iterable[int],
-    result: JobResult,
-    options: CollectOptions,
-    on_frame: Callable[[int], None] | None,
-) -> int:
-    """Capture `frames` (from the clip's first) as the head of the clip's log: the log's own
-    bytes so far, written by `LogWriter` as a one-worker run writes them, moved into the clip's
-    segment folder with its state in a sidecar (`HEAD_SUFFIX`, `SIDECAR_SUFFIX`), so that the
-    log is finished by appending the later segments to it rather than by copying the head (a
-    clip's first segment, often most of it, had been copied after the run's last frame)."""
-    writer = LogWriter(
-        log_path(root, unit.scenario_id),
-        setup.world.scenario,
-        setup.world.intersection_map,
-        setup.suite.rig,
-        setup.suite.motion,
-        setup.collection,
-        setup.labels,
-        sensor_every=options.sensor_every,
-    )
+def _write_head(piece: _Piece) -> int:
+    """Capture the piece's frames (from the clip's first) as the head of the clip's log: the
+    log's own bytes so far, written by `LogWriter` as a one-worker run writes them, moved into
+    the clip's segment folder with its state in a sidecar (`HEAD_SUFFIX`, `SIDECAR_SUFFIX`), so
+    that the log is finished by appending the later segments to it rather than by copying the
+    head (a clip's first segment, often most of it, had been copied after the run's last
+    frame). Returns how many frames it holds."""
+    unit, header = piece.unit, piece.header
+    writer = log_writer(log_path(piece.root, unit.scenario_id), piece.setup, piece.options)
     try:
-        count = capture_frames(
-            setup, frames, result.stage_seconds, writer.write, on_frame, options.sensor_every
-        )
+        count = piece.capture(writer.write)
         header["stop"] = unit.start + count
+        folder = segments_dir(piece.root, unit.scenario_id)
         head = folder / f"{_name(unit.start, header['stop'])}{HEAD_SUFFIX}"
         header["head"] = writer.suspend(head)
     except BaseException:
