@@ -276,7 +276,8 @@ class _ClipTracker:
         return list(self.clips.values())
 
     def close(self) -> None:
-        """Drop the partial logs of clips that did not finish (failed, or the run stopped)."""
+        """Stop writing the logs of clips that did not finish (failed, or the run stopped):
+        their partial files go, their heads and segments stay (`SegmentedLog.close`)."""
         for log in self.logs.values():
             log.close()
 

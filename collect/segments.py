@@ -438,7 +438,8 @@ def _write_segment(piece: _Piece) -> int:
             stream.write(data + _TRAILER.pack(len(data), END))
             stream.flush()
             os.fsync(stream.fileno())
-        os.replace(temporary, folder / f"{_name(unit.start, header['stop'])}{SUFFIX}")
+        done = dataclasses.replace(unit, stop=header["stop"])
+        os.replace(temporary, folder / f"{done.name}{SUFFIX}")
     finally:
         temporary.unlink(missing_ok=True)
     return count
@@ -457,7 +458,7 @@ def _write_head(piece: _Piece) -> int:
         count = piece.capture(writer.write)
         header["stop"] = unit.start + count
         folder = segments_dir(piece.root, unit.scenario_id)
-        head = folder / f"{_name(unit.start, header['stop'])}{HEAD_SUFFIX}"
+        head = folder / f"{dataclasses.replace(unit, stop=header['stop']).name}{HEAD_SUFFIX}"
         header["head"] = writer.suspend(head)
     except BaseException:
         writer.abort()
@@ -470,10 +471,6 @@ def _write_head(piece: _Piece) -> int:
         os.fsync(stream.fileno())
     os.replace(temporary, sidecar)  # the head is finished once its sidecar is there
     return count
-
-
-def _name(start: int, stop: int) -> str:
-    return WorkUnit("", start, stop).name
 
 
 class SegmentedLog:
@@ -512,7 +509,9 @@ class SegmentedLog:
                 return
             start = time.perf_counter()
             try:
-                if self._copy_ready():
+                copied = len(self._headers)
+                self._copy_ready()
+                if len(self._headers) > copied:
                     self._writer.sync()  # type: ignore[union-attr]
             except Exception as error:  # reported by `finish`
                 self._failure = error
@@ -527,13 +526,9 @@ class SegmentedLog:
         def work(result: JobResult) -> None:
             if self._failure is not None:
                 raise self._failure
-            self._copy_ready()
-            copied = [(h["start"], h["stop"]) for h in self._headers]
-            left = [(h["start"], h["stop"]) for _, h in finished_segments(
-                self.root, self.scenario_id, self.options)]  # fmt: skip
-            left = [piece for piece in left if piece not in copied]
+            left = self._copy_ready()
             if self._next != self.frames or left:
-                ranges = sorted(copied + left)
+                ranges = sorted([(h["start"], h["stop"]) for h in self._headers] + left)
                 raise DriveE2EError(
                     f"{self.folder}: segments {ranges} do not hold frames 0-{self.frames - 1} "
                     "once each"
@@ -555,19 +550,23 @@ class SegmentedLog:
             return result
 
     def close(self) -> None:
-        """Drop an unfinished log's partial file (its clip failed, or the run stopped); the
-        segments stay for a rerun."""
+        """Stop writing an unfinished log (its clip failed, or the run stopped): a new log's
+        partial file is deleted; a head and the segments stay for a rerun."""
         with self._lock:
             self._discard()
             self._closed = True
 
-    def _copy_ready(self) -> bool:
-        """Copy the finished segments that continue the log; whether any was."""
-        found = {h["start"]: (path, h) for path, h in finished_segments(
-            self.root, self.scenario_id, self.options)}  # fmt: skip
-        copied = False
+    def _copy_ready(self) -> list[tuple[int, int]]:
+        """Copy the finished segments that continue the log; returns the frames (start, stop)
+        of those found that do not (yet)."""
+        copied = {(h["start"], h["stop"]) for h in self._headers}  # by earlier calls
+        found = {
+            h["start"]: (path, h)
+            for path, h in finished_segments(self.root, self.scenario_id, self.options)
+            if (h["start"], h["stop"]) not in copied
+        }
         while self._next < self.frames and self._next in found:
-            path, header = found[self._next]
+            path, header = found.pop(self._next)
             if _records(header) != _records(self._headers[0] if self._headers else header):
                 raise DriveE2EError(
                     f"{self.folder}: segments made with different renderers or rigs; delete the "
@@ -580,8 +579,7 @@ class SegmentedLog:
                 for encoded in read_frames(path, header):
                     writer.write_encoded(encoded)
             self._headers.append(header)
-            copied = True
-        return copied
+        return [(h["start"], h["stop"]) for _, h in found.values()]
 
     def _open(self, header: dict, head: Path | None = None) -> LogWriter:
         """The log's writer: a new one from the first segment's records, or the `head`'s
