@@ -47,6 +47,7 @@ from drivee2e_data.collect.job import (
     planned_frames,
     remove_world_files,
 )
+from drivee2e_data.collect.preload import start_worker_server, worker_context
 from drivee2e_data.collect.segments import Job, WorkUnit
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs.reader import LogReader
@@ -55,8 +56,6 @@ from drivee2e_data.processes import (
     SPAWN,
     WORKER_THREADS,
     clean_up_when_stopped,
-    preloading,
-    start_server,
     worker_pool,
 )
 from drivee2e_data.sensors.ego_state import ego_motion
@@ -70,9 +69,6 @@ MERGE_THREADS = 2
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
-# what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
-# this module (and with it the collector's), and what a world imports when it is set up
-WORKER_MODULES = ("drivee2e_data.collect.runner", "pybullet", "moderngl", "glcontext.egl")
 INDEX_NAME = "index.parquet"
 
 
@@ -338,7 +334,7 @@ def collect(
             else:
                 pending.append(scenario_id)
         if backend == "local" and workers > 1 and pending:  # its imports overlap the planning
-            start_server(preloading(WORKER_MODULES))
+            start_worker_server()
         if backend == "ray" and pending:  # units for every CPU of the cluster
             workers = max(workers, _start_ray())
         # the local pool splits running segments for idle workers: no piece is a whole clip
@@ -401,14 +397,19 @@ def _existing(scenario_id: str, path: Path) -> JobResult:
 
 
 _frames_done: multiprocessing.Queue | None = None
+_units_done: multiprocessing.Queue | None = None  # (slot, JobResult) as each unit ends
 _claims: Any = None  # the pool's `_Claims.shared`
 
 
 def _init_worker(
-    frames_done: multiprocessing.Queue, started: Any, gpus: tuple[int, ...], claims: Any
+    frames_done: multiprocessing.Queue,
+    units_done: multiprocessing.Queue,
+    started: Any,
+    gpus: tuple[int, ...],
+    claims: Any,
 ) -> None:
-    global _frames_done, _claims
-    _frames_done, _claims = frames_done, claims
+    global _frames_done, _units_done, _claims
+    _frames_done, _units_done, _claims = frames_done, units_done, claims
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
@@ -436,18 +437,17 @@ def _pooled_job(
     root: Path, job: Job, options: CollectOptions, slots: tuple[int, ...]
 ) -> list[JobResult]:
     """A job's units in order, in a pool worker, each claiming its frames in its slot of
-    `_claims`; a failed unit does not stop the next."""
-    frames_done = _frames_done
-    return [
-        run_unit(
-            root,
-            unit,
-            options,
-            frames_done.put if frames_done else None,
-            functools.partial(_Claims.claim, _claims, slot),
-        )
-        for unit, slot in zip(job, slots, strict=True)
-    ]
+    `_claims`; a failed unit does not stop the next. Each unit's result is also sent as it
+    ends (`_units_done`), so that the parent writes a clip's log once its last unit is done
+    rather than when the job holding it ends."""
+    frames_done, results = _frames_done, []
+    for unit, slot in zip(job, slots, strict=True):
+        claim = functools.partial(_Claims.claim, _claims, slot)
+        result = run_unit(root, unit, options, frames_done.put if frames_done else None, claim)
+        if _units_done is not None:
+            _units_done.put((slot, result))
+        results.append(result)
+    return results
 
 
 class _Claims:
@@ -535,12 +535,12 @@ def _run_pool(
     segments is a copy of their chunks, so it takes no worker and the logs get written while
     the collection goes on; the thread makes the log's index rows too. `then` runs after the
     last job, while the workers exit."""
-    context = preloading(WORKER_MODULES)
-    frames_done = context.Queue()
+    context = worker_context()
+    frames_done, units_done = context.Queue(), context.Queue()
     started = context.Value("i", 0)
     units = sum(len(job) for job in jobs)
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
-    initargs = (frames_done, started, gpus, claims.shared)
+    initargs = (frames_done, units_done, started, gpus, claims.shared)
     with (
         worker_pool(workers, _init_worker, initargs, context) as pool,
         ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
@@ -548,11 +548,14 @@ def _run_pool(
         waiting = collections.deque(jobs)
         running: dict[Future, Job | str] = {}  # a job, or the clip whose log is being written
         slots: dict[Future, tuple[int, ...]] = {}  # a job's units' slots in `claims`
+        unit_in: dict[int, WorkUnit] = {}  # each slot's unit
+        ended: set[int] = set()  # the slots whose units' results were taken in
 
         def submit(job: Job) -> None:
             taken = tuple(claims.add(unit) for unit in job)
             future = pool.submit(_pooled_job, root, job, options, taken)
             running[future], slots[future] = job, taken
+            unit_in.update(zip(taken, job, strict=True))
 
         maps_of = maps or {}
         idle_maps: collections.deque[str | None] = collections.deque()  # freed workers' worlds
@@ -612,6 +615,19 @@ def _run_pool(
         def merge(scenario_id: str) -> None:
             running[writers.submit(tracker.write_log, scenario_id)] = scenario_id
 
+        def unit_ended(slot: int, result: JobResult) -> None:
+            """A unit's result taken in once (sent as it ended, or with its job's): measured,
+            and its clip's log written if it was the clip's last unit, else appended to."""
+            if slot in ended:
+                return
+            ended.add(slot)
+            unit = unit_in[slot]
+            measured(unit, result)
+            if (clip := tracker.finished(unit, result)) is not None:
+                merge(clip)
+            elif tracker.appends(unit, result):
+                writers.submit(tracker.append, unit.scenario_id)  # never raises
+
         def hand_out() -> None:
             busy = sum(not isinstance(j, str) for j in running.values())
             while waiting and busy < 2 * workers:
@@ -626,36 +642,44 @@ def _run_pool(
             merge(scenario_id)
         hand_out()
         while running:
-            done, _ = wait(set(running), timeout=0.25, return_when=FIRST_COMPLETED)
+            done, _ = wait(set(running), timeout=0.1, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
+            for slot, result in _taken(units_done):
+                unit_ended(slot, result)
             for future in done:
                 job = running.pop(future)
-                slots.pop(future, None)
+                taken = slots.pop(future, ())
                 if isinstance(job, str):
                     tracker.merged(job, future.result())  # merge_clip never raises
                     continue
                 try:
                     results = future.result()
-                except BrokenProcessPool:
+                except BrokenProcessPool:  # units that ended before it keep their results
                     results = [
                         JobResult(unit.scenario_id, "failed", error="the worker process died")
                         for unit in job
                     ]
                 world = None  # the map of the world the job's worker holds now
-                for unit, result in zip(job, results, strict=True):
-                    measured(unit, result)
+                for unit, slot, result in zip(job, taken, results, strict=True):
+                    unit_ended(slot, result)
                     if result.stage_seconds.get("setup"):
                         world = maps_of.get(unit.scenario_id)
-                    if (clip := tracker.finished(unit, result)) is not None:
-                        merge(clip)
-                    elif tracker.appends(unit, result):
-                        writers.submit(tracker.append, unit.scenario_id)  # never raises
                 idle_maps.append(world)
             hand_out()
         _drain(frames_done, tick)
         pool.shutdown(wait=False)  # the workers exit while `then` runs
         if then is not None:
             then()
+
+
+def _taken(units_done: multiprocessing.Queue) -> list[tuple[int, JobResult]]:
+    """The (slot, result) of every unit the workers reported ended since the last call."""
+    ended = []
+    while True:
+        try:
+            ended.append(units_done.get_nowait())
+        except queue.Empty:
+            return ended
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:

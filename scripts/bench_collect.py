@@ -52,7 +52,7 @@ from bench_render import four_way_clip
 from drivee2e_data import store
 from drivee2e_data.cli import build_parser
 from drivee2e_data.cli import main as cli_main
-from drivee2e_data.cli.collection import plan_collect
+from drivee2e_data.cli.collection import plan_collect, start_pool_server
 from drivee2e_data.collect.job import FRAME_STAGES, JOB_STAGES, CollectOptions, log_path
 from drivee2e_data.collect.runner import CollectSummary, collect
 from drivee2e_data.logs.reader import validate
@@ -225,7 +225,11 @@ def mix(args: argparse.Namespace) -> None:
         argv += ["--sensor-hz", args.sensor_hz]
         if args.max_frames:
             argv += ["--max-frames", str(args.max_frames)]
-        planned = plan_collect(build_parser().parse_args(argv))
+        parsed = build_parser().parse_args(argv)
+        # as `drivee2e collect` does, though that starts the pool's server sooner still, before
+        # its own imports (`drivee2e_data.launch`): here it gets the host's probe as a head start
+        start_pool_server(parsed)
+        planned = plan_collect(parsed)
         if planned.host is not None:
             print(planned.host.describe())
         start = time.perf_counter()

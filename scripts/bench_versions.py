@@ -55,7 +55,10 @@ def cli(arguments: list[str], pythonpath: Path | None) -> str:
     command = [
         sys.executable,
         "-c",
-        "import sys; from drivee2e_data.cli import main; sys.exit(main())",
+        # the `drivee2e` command's entry point (`launch`, which starts a pool's server first),
+        # or, in a version without one, its command line
+        "import sys\ntry: from drivee2e_data.launch import main\n"
+        "except ImportError: from drivee2e_data.cli import main\nsys.exit(main())",
     ]
     # run outside the checkout: `python -c` puts the working directory first on sys.path
     done = subprocess.run([*command, *arguments], env=environment, capture_output=True, text=True,

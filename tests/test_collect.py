@@ -339,3 +339,34 @@ def test_index_columns_are_made_from_buffers_with_the_values_given():
     ]
     assert arrow_column([0.25, -3.5], pa.float64()).to_pylist() == [0.25, -3.5]
     assert arrow_column([], pa.string()).to_pylist() == []
+
+
+def test_a_pool_worker_reports_each_unit_as_it_ends_not_when_its_job_does(monkeypatch):
+    """The parent writes a clip's log once the clip's last unit is in; a job of two units
+    sends the first unit's result before the second begins."""
+    from drivee2e_data.collect import runner
+    from drivee2e_data.collect.job import CollectOptions, JobResult
+    from drivee2e_data.collect.segments import WorkUnit
+
+    events: list[object] = []
+
+    class Reports:
+        def put(self, item):
+            events.append(("reported", item[0], item[1].scenario_id))
+
+    def run_unit(root, unit, options, on_frame, claim):
+        events.append(("began", unit.scenario_id))
+        return JobResult(unit.scenario_id, "collected", frames=unit.frames)
+
+    monkeypatch.setattr(runner, "run_unit", run_unit)
+    monkeypatch.setattr(runner, "_units_done", Reports())
+    monkeypatch.setattr(runner, "_frames_done", None)
+    job = (WorkUnit("a", 20, 40), WorkUnit("b", 0, 30))
+    results = runner._pooled_job(Path("root"), job, CollectOptions(), (3, 4))
+    assert [r.scenario_id for r in results] == ["a", "b"]
+    assert events == [
+        ("began", "a"),
+        ("reported", 3, "a"),
+        ("began", "b"),
+        ("reported", 4, "b"),
+    ]

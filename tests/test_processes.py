@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from drivee2e_data.collect.preload import pools_workers
 from drivee2e_data.processes import WORKER_THREADS, one_thread_per_worker
 
 # a child that loads numpy, multiplies 200,000 rows by a 3x3 matrix (the size the LiDAR's
@@ -52,6 +53,7 @@ def test_a_setting_of_the_users_own_is_kept(monkeypatch):
 PRELOADING_PARENT = """
 import os, sys
 from multiprocessing import forkserver
+from drivee2e_data.collect.preload import pools_workers
 from drivee2e_data.processes import preloading, start_server, worker_pool
 
 def report():
@@ -87,3 +89,37 @@ def test_a_preloading_pool_forks_workers_that_imported_the_modules_in_one_thread
     assert (method, preloaded, parent_imported) == ("forkserver", "True", "False")
     assert (worker_setting, parent_setting) == ("1", "None")
     assert server == ["True", "True"]  # started early, and the one the pool used
+
+
+@pytest.mark.parametrize(
+    ("argv", "pooled"),
+    [
+        (["collect", "DATA", "--workers", "auto"], True),
+        (["collect", "DATA", "--workers=4"], True),
+        (["collect", "DATA"], False),  # one worker by default
+        (["collect", "DATA", "--workers", "1"], False),
+        (["collect", "DATA", "--workers", "8", "--backend", "ray"], False),
+        (["collect", "DATA", "--workers", "8", "--backend=local"], True),
+        (["view", "DATA", "--workers", "8"], False),
+        ([], False),
+    ],
+)
+def test_the_command_line_says_when_a_collection_runs_a_local_pool(argv, pooled):
+    assert pools_workers(argv) is pooled
+
+
+def test_the_entry_point_starts_the_pool_server_before_the_command_runs(monkeypatch):
+    from drivee2e_data import cli, launch
+    from drivee2e_data.collect import preload
+
+    events = []
+    monkeypatch.setattr(preload, "start_worker_server", lambda: events.append("server"))
+    monkeypatch.setattr(cli, "main", lambda argv: events.append(("command", argv)) or 0)
+    for argv in (["collect", "D", "--workers", "2"], ["collect", "D"]):
+        monkeypatch.setattr(sys, "argv", ["drivee2e", *argv])
+        assert launch.main() == 0
+    assert events == [
+        "server",
+        ("command", ["collect", "D", "--workers", "2"]),
+        ("command", ["collect", "D"]),
+    ]

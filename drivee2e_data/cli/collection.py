@@ -20,6 +20,7 @@ from drivee2e_data.cli.arguments import (
 from drivee2e_data.collect import host as collect_host
 from drivee2e_data.collect import runner as collect_runner
 from drivee2e_data.collect.job import CollectOptions
+from drivee2e_data.collect.preload import start_worker_server
 from drivee2e_data.collect.runner import BACKENDS
 from drivee2e_data.errors import DriveE2EError, LogFormatError
 from drivee2e_data.logs import topics
@@ -196,7 +197,15 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
     return CollectPlan(options, workers, gpus, host if scenario_ids else None)
 
 
+def start_pool_server(args: argparse.Namespace) -> None:
+    """Start the server a local pool's workers fork from before the host is probed, so that
+    its imports run meanwhile (the `drivee2e` command started it sooner still: `launch`)."""
+    if args.workers != 1 and args.backend == "local":
+        start_worker_server()
+
+
 def run_collect(args: argparse.Namespace) -> int:
+    start_pool_server(args)
     planned = plan_collect(args)
     options, workers, gpus = planned.options, planned.workers, planned.gpus
     if planned.host is not None:

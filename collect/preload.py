@@ -1,0 +1,56 @@
+"""What a collection pool's workers import before their first job, and the server they are
+forked from, started as early as a command can (`drivee2e_data.launch`)."""
+
+from __future__ import annotations
+
+import multiprocessing.context
+from collections.abc import Sequence
+
+from drivee2e_data.processes import preloading, start_server
+
+# what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
+# the collector, and what a world imports when it is set up. numpy loads `numpy.ma` and
+# `numpy.random` on first use (`np.median` in the twin's build, `secrets` in a temporary name):
+# in each worker's first set-up that was 0.1 s on an H100 host (scripts/profile_setup.py)
+WORKER_MODULES = (
+    "drivee2e_data.collect.runner",
+    "numpy.ma",
+    "numpy.random",
+    "pybullet",
+    "moderngl",
+    "glcontext.egl",
+)
+
+
+def worker_context() -> multiprocessing.context.BaseContext:
+    """The start method of the collector's pools (`processes.preloading` of `WORKER_MODULES`)."""
+    return preloading(WORKER_MODULES)
+
+
+def start_worker_server() -> None:
+    """Start the server the collector's pool workers fork from, if not running: it imports
+    `WORKER_MODULES` (about a second) while the command goes on (`processes.start_server`)."""
+    start_server(worker_context())
+
+
+def _option(argv: Sequence[str], flag: str) -> str | None:
+    """The value given to `flag` in `argv` (`--flag V` or `--flag=V`), the last one; None if
+    absent."""
+    value = None
+    for k, word in enumerate(argv):
+        if word == flag and k + 1 < len(argv):
+            value = argv[k + 1]
+        elif word.startswith(flag + "="):
+            value = word.split("=", 1)[1]
+    return value
+
+
+def pools_workers(argv: Sequence[str]) -> bool:
+    """Whether `drivee2e` arguments `argv` run a collection on a local pool of workers:
+    `collect` with `--workers` other than 1 (the default) and the local backend."""
+    if not argv or argv[0] != "collect":
+        return False
+    return _option(argv, "--workers") not in (None, "1") and _option(argv, "--backend") in (
+        None,
+        "local",
+    )
