@@ -58,7 +58,8 @@ from drivee2e_data.processes import (
     clean_up_when_stopped,
     worker_pool,
 )
-from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.scenario import Scenario
+from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sim import egl_devices
 
 BACKENDS = ("local", "ray")
@@ -247,9 +248,10 @@ class _ClipTracker:
     def write_log(self, scenario_id: str) -> JobResult:
         """The clip's log made final from its segments (`SegmentedLog.finish`), then its index
         rows (kept for `write_index`); a pool runs it in a thread of this process."""
-        result = self.logs[scenario_id].finish()
+        log = self.logs[scenario_id]
+        result = log.finish()
         if result.status == "collected":
-            rows = index_rows(self.root, log_path(self.root, scenario_id))
+            rows = index_rows(self.root, log_path(self.root, scenario_id), log.scenario())
             if rows is not None:
                 self.index_rows[scenario_id] = rows
         return result
@@ -772,17 +774,22 @@ def _gather_ray(
                     tracker.merge(merge)
 
 
-def index_rows(root: Path, path: Path) -> dict[str, list] | None:
+def index_rows(
+    root: Path, path: Path, clip: tuple[Scenario, EgoMotion] | None = None
+) -> dict[str, list] | None:
     """One log's rows of `logs/index.parquet` (see `write_index`), by column; None for a log
-    that does not read or no longer matches its scenario."""
+    that does not read or no longer matches its scenario. `clip`: the scenario and ego motion
+    the log was just written from, where known (else read)."""
     try:
         with LogReader(path) as log:
             frames = list(log.sensor_frames)
     except LogFormatError:
         return None  # not ours to index; `drivee2e logs --validate` names what is wrong
     try:
-        scenario = store.read_scenario(root, path.stem, require_map=False)
-        motion = ego_motion(scenario)
+        if clip is None:
+            scenario = store.read_scenario(root, path.stem, require_map=False)
+            clip = scenario, ego_motion(scenario)
+        scenario, motion = clip
     except (DriveE2EError, ValueError):
         return None  # the log outlived or no longer matches its scenario: nothing to index
     behavior = scenario.behavior

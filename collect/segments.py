@@ -56,7 +56,8 @@ from drivee2e_data.collect.job import (
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.chunks import read_chunk
 from drivee2e_data.logs.writer import EncodedFrame, FrameEncoder, LogWriter, label_kinds
-from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.scenario import Scenario
+from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sensors.suite import configured_rig
 
 SEGMENTS_FOLDER = ".segments"
@@ -495,6 +496,7 @@ class SegmentedLog:
         self._headers: list[dict] = []  # of the segments copied, in order
         self._failure: BaseException | None = None  # of an `append`, raised again by `finish`
         self._closed = False
+        self._clip: tuple | None = None  # scenario, map, rig and ego motion (`_prepared`)
         self.seconds = 0.0  # spent appending
 
     @property
@@ -509,6 +511,7 @@ class SegmentedLog:
                 return
             start = time.perf_counter()
             try:
+                self._prepared()  # read now, off the clip's end, even if nothing continues yet
                 copied = len(self._headers)
                 self._copy_ready()
                 if len(self._headers) > copied:
@@ -581,12 +584,25 @@ class SegmentedLog:
             self._headers.append(header)
         return [(h["start"], h["stop"]) for _, h in found.values()]
 
+    def scenario(self) -> tuple[Scenario, EgoMotion]:
+        """The clip's scenario and ego motion, as its log was written from (read once)."""
+        with self._lock:
+            scenario, _, _, motion = self._prepared()
+        return scenario, motion
+
+    def _prepared(self) -> tuple:
+        """The clip's scenario, map, rig and ego motion, read on first use (0.1 s and more a
+        clip: the first `append` reads them, so the clip's end need not)."""
+        if self._clip is None:
+            scenario = store.read_scenario(self.root, self.scenario_id)
+            self._clip = (scenario, store.read_map(self.root, scenario.map_id),
+                          configured_rig(self.options.suite()), ego_motion(scenario))  # fmt: skip
+        return self._clip
+
     def _open(self, header: dict, head: Path | None = None) -> LogWriter:
         """The log's writer: a new one from the first segment's records, or the `head`'s
         resumed."""
-        scenario = store.read_scenario(self.root, self.scenario_id)
-        clip = (scenario, store.read_map(self.root, scenario.map_id),
-                configured_rig(self.options.suite()), ego_motion(scenario))  # fmt: skip
+        clip = self._prepared()
         path, every = log_path(self.root, self.scenario_id), self.options.sensor_every
         if head is not None:
             self._writer = LogWriter.resume(

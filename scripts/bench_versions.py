@@ -138,6 +138,7 @@ def main() -> None:
         if args.max_frames:
             collect += ["--max-frames", str(args.max_frames)]
         rates: dict[str, list[float]] = {"base": [], "working tree": []}
+        walls: dict[str, list[float]] = {"base": [], "working tree": []}  # the whole command's
         sizes: dict[str, float] = {}
         for repeat in range(args.repeats):
             for name, path in (("base", base), ("working tree", None)):
@@ -152,8 +153,10 @@ def main() -> None:
                 log_bytes = sum(p.stat().st_size for p in (data / "logs").glob("*.mcap"))
                 sizes[name] = log_bytes / 1e6 / frames
                 rates[name].append(rate)
+                walls[name].append(wall)
                 print(f"run {repeat + 1} {name:13s} {frames} frames  {rate:.2f} frames/s  "
-                      f"(CLI wall {wall:.0f} s)  {sizes[name]:.3f} MB a frame", flush=True)  # fmt: skip
+                      f"(CLI wall {wall:.1f} s: {frames / wall:.2f} frames/s)  "
+                      f"{sizes[name]:.3f} MB a frame", flush=True)  # fmt: skip
         if args.render:
             base_times = render_times(data, base, args.render)
             new_times = render_times(data, None, args.render)
@@ -171,6 +174,9 @@ def main() -> None:
         print(f"base {args.base}: {means['base']:.2f} frames/s; working tree: "
               f"{means['working tree']:.2f} frames/s; ratio {means['working tree'] / means['base']:.3f}; "
               f"log {sizes['base']:.3f} -> {sizes['working tree']:.3f} MB a frame")  # fmt: skip
+        process = {name: sum(values) / len(values) for name, values in walls.items()}
+        print(f"the whole command (start to exit): base {process['base']:.1f} s, working tree "
+              f"{process['working tree']:.1f} s; ratio {process['base'] / process['working tree']:.3f}")  # fmt: skip
     finally:
         subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(folder / "base")],
                        capture_output=True)  # fmt: skip

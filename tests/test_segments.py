@@ -141,29 +141,40 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
 
 
 def test_a_log_grows_from_its_head_as_its_segments_finish_and_ends_the_same_as_one_workers(
-    collected_root: Path, synthetic_root: Path, tmp_path: Path
+    collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch
 ):
     """The clip's first segment is its log's head, written as the log begins; a pool appends each
     finished segment that continues it (`SegmentedLog`): a segment that does not continue it
-    waits; the head is grown in place, never copied; the finished log equals one worker's."""
+    waits; the head is grown in place, never copied; the finished log equals one worker's. The
+    clip's scenario is read once, by the first append, not at the clip's end."""
     scenario_id = store.scenario_ids(synthetic_root)[0]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
     log = segments.SegmentedLog(root, scenario_id, options, LONG_CLIP_FRAMES)
     head = segments.segments_dir(root, scenario_id) / "000000-000012.head"
-    sizes = []
+    reads = []
+    read_scenario = store.read_scenario
+    monkeypatch.setattr(
+        store, "read_scenario", lambda *a, **k: reads.append(1) or read_scenario(*a, **k)
+    )
+    sizes, read_by_log = [], []
     for start, stop in ((24, 36), (0, 12), (12, 24)):
         assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
         if start == 0:
             written = head.stat().st_size
+        before = len(reads)
         log.append()
+        read_by_log.append(len(reads) - before)
         sizes.append(head.stat().st_size if head.exists() else 0)
+    assert read_by_log == [1, 0, 0]
     assert sizes[0] == 0  # frames 24-35 do not continue a log not begun
     assert sizes[1] == written  # the head is the log so far: nothing to copy
     assert sizes[2] > written  # frames 12-35 appended to it
     assert not list((root / "logs").glob(".*.partial"))  # no second copy of the log
+    before = len(reads)
     result = log.finish()
     assert result.status == "collected", result.error
+    assert len(reads) == before and log.scenario()[0].scenario_id == scenario_id
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert log_path(root, scenario_id).read_bytes() == alone.read_bytes()
     assert not segments.segments_dir(root, scenario_id).exists()
