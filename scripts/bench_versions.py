@@ -52,13 +52,14 @@ def cli(arguments: list[str], pythonpath: Path | None) -> str:
     environment = dict(os.environ)
     if pythonpath is not None:
         environment["PYTHONPATH"] = f"{pythonpath}{os.pathsep}{environment.get('PYTHONPATH', '')}"
+    # the `drivee2e` command's entry point (`launch`, which starts a pool's server first), or, in
+    # a version without one, its command line
+    tree = ROOT if pythonpath is None else pythonpath
+    entry = "launch" if (tree / "drivee2e_data" / "launch.py").exists() else "cli"
     command = [
         sys.executable,
         "-c",
-        # the `drivee2e` command's entry point (`launch`, which starts a pool's server first),
-        # or, in a version without one, its command line
-        "import sys\ntry: from drivee2e_data.launch import main\n"
-        "except ImportError: from drivee2e_data.cli import main\nsys.exit(main())",
+        f"import sys; from drivee2e_data.{entry} import main; sys.exit(main())",
     ]
     # run outside the checkout: `python -c` puts the working directory first on sys.path
     done = subprocess.run([*command, *arguments], env=environment, capture_output=True, text=True,
