@@ -21,7 +21,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("evaluate", ("evaluate",)),
     ("agents, export", ("agents", "export", "openloop")),
     ("jobs", ("pipeline", "figures", "collect")),
-    ("interface", ("cli",)),
+    ("interface", ("cli", "launch")),
 )
 PACKAGE_FOLDERS = {"collect": ROOT / "collect", "loaders": ROOT / "loaders"}
 
