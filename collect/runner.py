@@ -646,7 +646,7 @@ def _run_pool(
         while running:
             done, _ = wait(set(running), timeout=0.1, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
-            for slot, result in _taken(units_done):
+            for slot, result in _queued(units_done):  # (slot, JobResult) as units end
                 unit_ended(slot, result)
             for future in done:
                 job = running.pop(future)
@@ -674,23 +674,18 @@ def _run_pool(
             then()
 
 
-def _taken(units_done: multiprocessing.Queue) -> list[tuple[int, JobResult]]:
-    """The (slot, result) of every unit the workers reported ended since the last call."""
-    ended = []
+def _queued(reports: multiprocessing.Queue) -> list:
+    """Everything the workers put on `reports` since the last call (without waiting)."""
+    items = []
     while True:
         try:
-            ended.append(units_done.get_nowait())
+            items.append(reports.get_nowait())
         except queue.Empty:
-            return ended
+            return items
 
 
 def _drain(frames_done: multiprocessing.Queue, tick: Callable[[int], None] | None) -> None:
-    count = 0
-    while True:
-        try:
-            count += frames_done.get_nowait()
-        except queue.Empty:
-            break
+    count = sum(_queued(frames_done))
     if tick is not None and count:
         tick(count)
 
