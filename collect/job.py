@@ -9,6 +9,7 @@ map (building a twin takes a second or two).
 from __future__ import annotations
 
 import atexit
+import functools
 import json
 import os
 import resource
@@ -25,6 +26,7 @@ from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
 from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, StateFrame, SuiteOptions
+from drivee2e_data.sim import reuse
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
@@ -125,8 +127,9 @@ def _world_for(
         camera_gpu.prepare(post_process)
     scenario = store.read_scenario(root, scenario_id)
     _world = world_for(
-        _world, scenario, lambda map_id: store.read_map(root, map_id), renderer, frames
-    )
+        _world, scenario, lambda map_id: store.read_map(root, map_id), renderer, frames,
+        functools.partial(reuse.twin_plan, root),
+    )  # fmt: skip
     return _world
 
 

@@ -13,8 +13,10 @@ import fcntl
 import functools
 import io
 import multiprocessing
+import multiprocessing.util
 import os
 import queue
+import shutil
 import signal
 import time
 from collections.abc import Callable, Iterator
@@ -60,7 +62,8 @@ from drivee2e_data.processes import (
 )
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
-from drivee2e_data.sim import egl_devices
+from drivee2e_data.sim import egl_devices, reuse
+from drivee2e_data.sim.twin import mesh_folder
 
 BACKENDS = ("local", "ray")
 # threads writing clips' logs from their segments beside the pool: a log is a copy of its
@@ -398,6 +401,8 @@ def _existing(scenario_id: str, path: Path) -> JobResult:
     return JobResult(scenario_id, "skipped", log_bytes=path.stat().st_size)
 
 
+# below the queues' own exit steps (`multiprocessing.queues`: -5 joins a queue's feeding thread)
+WORKER_FILES_EXIT_PRIORITY = -10
 _frames_done: multiprocessing.Queue | None = None
 _units_done: multiprocessing.Queue | None = None  # (slot, JobResult) as each unit ends
 _claims: Any = None  # the pool's `_Claims.shared`
@@ -409,9 +414,11 @@ def _init_worker(
     started: Any,
     gpus: tuple[int, ...],
     claims: Any,
+    plans: str,
 ) -> None:
     global _frames_done, _units_done, _claims
     _frames_done, _units_done, _claims = frames_done, units_done, claims
+    reuse.share_in(Path(plans))  # what any worker planned or wrote is there for all
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
@@ -423,6 +430,9 @@ def _init_worker(
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     clean_up_when_stopped(remove_world_files)
     atexit.register(_exit_at_once)  # run first: handlers run last registered first
+    # a worker forked from the pool's server leaves by `os._exit` without running `atexit`:
+    # its world's files go with multiprocessing's own exit steps, after its queues flushed
+    multiprocessing.util.Finalize(None, remove_world_files, exitpriority=WORKER_FILES_EXIT_PRIORITY)
 
 
 def _exit_at_once() -> None:
@@ -542,8 +552,10 @@ def _run_pool(
     started = context.Value("i", 0)
     units = sum(len(job) for job in jobs)
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
-    initargs = (frames_done, units_done, started, gpus, claims.shared)
+    plans = mesh_folder()  # the run's twin plans and shape files (`reuse`), removed with the pool
+    initargs = (frames_done, units_done, started, gpus, claims.shared, str(plans))
     with (
+        _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,
         ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
     ):
@@ -672,6 +684,15 @@ def _run_pool(
         pool.shutdown(wait=False)  # the workers exit while `then` runs
         if then is not None:
             then()
+
+
+@contextmanager
+def _removed_after(folder: Path) -> Iterator[None]:
+    """Delete `folder` and what is in it on the way out, however the block ends."""
+    try:
+        yield
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _queued(reports: multiprocessing.Queue) -> list:

@@ -262,6 +262,22 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     assert not list(temporary.glob("drivee2e_twin_*"))
 
 
+def test_a_pool_run_that_ends_leaves_nothing_in_the_temp_folder(
+    synthetic_root: Path, tmp_path: Path
+):
+    """Neither the workers' twin meshes and actors' shape files nor the run's shared twin plans
+    stay behind: a worker forked from the pool's server never runs `atexit`."""
+    ids = store.scenario_ids(synthetic_root)[:3]
+    root = copy_clips(synthetic_root, tmp_path / "data", ids)
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    process = _start_collector(root, ["--workers", "2", "--max-frames", "3"], temporary)
+    _, err = process.communicate(timeout=300)
+    assert process.returncode == 0, err.decode()
+    assert len(list((root / "logs").glob("*.mcap"))) == len(ids)
+    assert not list(temporary.iterdir())
+
+
 def test_a_damaged_log_is_reported_not_skipped_nor_overwritten(
     synthetic_root: Path, tmp_path: Path, capsys
 ):

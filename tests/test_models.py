@@ -14,7 +14,7 @@ from drivee2e_data.sim.conditions import ShaderLook
 from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
 from drivee2e_data.sim.models import Animation, Light, agent_model, palette, pose, vehicles
 from drivee2e_data.sim.models.mesh import HIP_SWING_RAD, face_normals
-from drivee2e_data.sim.twin import TwinMesh, box_mesh
+from drivee2e_data.sim.twin_plan import TwinMesh, box_mesh
 from tests.factories import straight_track
 
 MOTOR = (AgentClass.CAR, AgentClass.VAN, AgentClass.TRUCK, AgentClass.BUS)

@@ -19,7 +19,7 @@ from drivee2e_data.sim.gl_batches import MATERIAL_GROUPS, group_defines, in_draw
 from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
-from drivee2e_data.sim.twin import TwinMesh
+from drivee2e_data.sim.twin_plan import TwinMesh
 
 needs_gl = pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 

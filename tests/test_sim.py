@@ -14,8 +14,9 @@ from drivee2e_data import pipeline, store
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim import twin as twin_module
+from drivee2e_data.sim import twin_plan
 from drivee2e_data.sim.actors import geometry_key
-from drivee2e_data.sim.twin import CROWN_RGBAS, FACADE_RGBAS
+from drivee2e_data.sim.twin_plan import CROWN_RGBAS, FACADE_RGBAS
 from drivee2e_data.sim.world import World, connect, tracks_shown_in
 from tests.factories import egl_world, front_view, synthetic_clip
 
@@ -136,10 +137,9 @@ def test_concave_polygon_triangulates_exactly():
     import shapely
 
     l_shape = shapely.Polygon([(0, 0), (4, 0), (4, 1), (1, 1), (1, 3), (0, 3)])
-    vertices, indices = twin_module.triangulate(l_shape)
+    vertices, indices = twin_plan.triangulate(l_shape)
     area = sum(
-        abs(twin_module._signed_area(vertices[indices[k : k + 3]]))
-        for k in range(0, len(indices), 3)
+        abs(twin_plan._signed_area(vertices[indices[k : k + 3]])) for k in range(0, len(indices), 3)
     )
     assert area == pytest.approx(l_shape.area)
 
@@ -154,15 +154,15 @@ def _outward_triangles(vertices, indices, centre) -> tuple[int, int]:
 
 def test_twin_meshes_wind_outward_and_close():
     centre = np.array([1.0, 2.0, 3.0])
-    vertices, indices = twin_module.box_mesh(centre, 0.7, np.array([4.0, 2.0, 1.5]))
+    vertices, indices = twin_plan.box_mesh(centre, 0.7, np.array([4.0, 2.0, 1.5]))
     assert _outward_triangles(vertices, indices, centre) == (12, 12)
     assert np.allclose(np.sort(np.abs((vertices - centre)[:, 2])), 0.75)
-    vertices, indices, normals = twin_module.sphere_mesh(centre, 2.0, rings=8, segments=12)
+    vertices, indices, normals = twin_plan.sphere_mesh(centre, 2.0, rings=8, segments=12)
     assert _outward_triangles(vertices, indices, centre) == (2 * 12 * 7, 2 * 12 * 7)
     assert np.allclose(np.linalg.norm(vertices - centre, axis=1), 2.0)
     assert np.allclose(normals, (vertices - centre) / 2.0)
     clockwise = np.array([[0.0, 0.0], [0.0, 4.0], [5.0, 4.0], [5.0, 0.0]])
-    vertices, indices = twin_module.prism_mesh(clockwise, 0.0, 3.0)
+    vertices, indices = twin_plan.prism_mesh(clockwise, 0.0, 3.0)
     # four walls of two triangles and a roof of two
     assert _outward_triangles(vertices, indices, np.array([2.5, 2.0, 1.5])) == (10, 10)
 

@@ -11,6 +11,7 @@ without pybullet at all.
 from __future__ import annotations
 
 import atexit
+import functools
 import json
 import random
 import resource
@@ -128,9 +129,13 @@ def _agent_for(options: EvaluationOptions, agent_factory: AgentFactory | None) -
 
 def _world_for(root: Path, scenario: Any, renderer: str) -> Any:
     global _world
+    from drivee2e_data.sim import reuse
     from drivee2e_data.sim.world import world_for
 
-    _world = world_for(_world, scenario, lambda map_id: store.read_map(root, map_id), renderer)
+    _world = world_for(
+        _world, scenario, lambda map_id: store.read_map(root, map_id), renderer,
+        plan_for=functools.partial(reuse.twin_plan, root),
+    )  # fmt: skip
     return _world
 
 

@@ -10,7 +10,7 @@ the simple boxes of before as its visual shape.
 from __future__ import annotations
 
 import hashlib
-import zlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -108,22 +108,38 @@ def _bins(values: NDArray[np.float64], count: int) -> NDArray[np.int64]:
 
 
 def geometry_key(model: ModelMesh) -> int:
-    """What a model's collision shape depends on (`convex_parts`), as a number: models with the
-    same key have the same shape."""
-    return zlib.crc32(model.joints.tobytes(), zlib.crc32(model.positions.tobytes()))
+    """What a model's collision shape depends on (`convex_parts`), as a 64-bit number: models
+    with the same key have the same shape (a run's workers share the shapes' files by it, so
+    the key is a digest, not a 32-bit checksum a few thousand shapes could collide in)."""
+    digest = hashlib.blake2b(model.joints.tobytes(), digest_size=8)
+    digest.update(model.positions.tobytes())
+    return int.from_bytes(digest.digest(), "little")
 
 
 def _part_files(model: ModelMesh, folder: Path, key: int) -> list[str]:
     """OBJ files of the model's convex parts (their triangles; pybullet hulls a mesh shape's
-    vertices), written once per shape (`key`: its `geometry_key`) into `folder`."""
-    parts = convex_parts(model)
+    vertices), written once per shape (`key`: its `geometry_key`) into `folder`, which the
+    workers of a run may share: each file is written whole under a temporary name, then
+    renamed, and the list of the parts (`actor_<key>.parts`) last, so a list found means its
+    files are there."""
+    listing = folder / f"actor_{key:016x}.parts"
+    try:
+        return [str(folder / name) for name in listing.read_text().split()]
+    except FileNotFoundError:
+        pass
     names = []
-    for index, part in enumerate(parts):
-        path = folder / f"actor_{key:08x}_{index:02d}.obj"
-        if not path.exists():
-            path.write_text(obj_text(part))
-        names.append(str(path))
-    return names
+    for index, part in enumerate(convex_parts(model)):
+        path = folder / f"actor_{key:016x}_{index:02d}.obj"
+        _write_whole(path, obj_text(part))
+        names.append(path.name)
+    _write_whole(listing, "\n".join(names))
+    return [str(folder / name) for name in names]
+
+
+def _write_whole(path: Path, text: str) -> None:
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    temporary.write_text(text)
+    os.replace(temporary, path)
 
 
 def create_actor(

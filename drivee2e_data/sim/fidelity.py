@@ -13,7 +13,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import IntersectionMap
-from drivee2e_data.sim.twin import paint_geometry, stop_line_band
+from drivee2e_data.sim.twin_plan import paint_geometry, stop_line_band
 from drivee2e_data.sim.world import World
 
 ELEMENTS = ("lanes", "crosswalks", "stop_lines", "road_marks")

@@ -52,7 +52,8 @@ from drivee2e_data.sim.gl_vertices import (
     static_vertices,
 )
 from drivee2e_data.sim.models import Animation, ModelMesh, pose
-from drivee2e_data.sim.twin import TwinMesh, WearRaster
+from drivee2e_data.sim.scenery import WearRaster
+from drivee2e_data.sim.twin_plan import TwinMesh
 
 LOG = logging.getLogger(__name__)
 SHADER_DIR = Path(__file__).with_name("shaders")

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sim.models import Material, ModelMesh
-from drivee2e_data.sim.twin import TwinMesh, box_mesh, prism_mesh, sphere_mesh
+from drivee2e_data.sim.twin_plan import TwinMesh, box_mesh, prism_mesh, sphere_mesh
 
 CYLINDER_SIDES = 16
 # spheres are small here (signal lamps and heads, 12 cm): 80 triangles each, half the twin's

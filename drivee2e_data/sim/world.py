@@ -28,12 +28,14 @@ from drivee2e_data.arrays import nearest_indices
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, Scenario, SignalState, Track
+from drivee2e_data.sim import reuse
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
 from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available, gl_renderer_name
 from drivee2e_data.sim.models import LOOK_VERSION, Animation, ModelMesh, agent_model
 from drivee2e_data.sim.twin import Twin, build_twin
+from drivee2e_data.sim.twin_plan import TwinPlan
 
 LOG = logging.getLogger(__name__)
 _LIBC = ctypes.CDLL(ctypes.util.find_library("c"))
@@ -147,7 +149,8 @@ def _connect(renderer: str) -> tuple[int, str]:
 
 
 class World:
-    """The twin of `intersection_map` with `scenario`'s agents, in one pybullet client."""
+    """The twin of `intersection_map` with `scenario`'s agents, in one pybullet client; the
+    twin built from `twin_plan` where the map's plan is at hand (`reuse`), else planned."""
 
     def __init__(
         self,
@@ -156,16 +159,21 @@ class World:
         renderer: str = "auto",
         draw_radius_m: float = 120.0,
         frames: range | None = None,
+        twin_plan: TwinPlan | None = None,
     ) -> None:
         with quiet_native_output():
             import pybullet
 
+        if twin_plan is not None and twin_plan.map_id != intersection_map.map_id:
+            raise DriveE2EError(
+                f"a twin plan of map {twin_plan.map_id!r} given for map {intersection_map.map_id!r}"
+            )
         self.p = pybullet
         self.client, self.renderer = connect(renderer)
         self.egl_client = _egl_clients if self.renderer == "egl" else None
         self.closed = False
         self.intersection_map, self.draw_radius_m = intersection_map, draw_radius_m
-        self.twin: Twin = build_twin(intersection_map, self.client)
+        self.twin: Twin = build_twin(twin_plan or intersection_map, self.client)
         self.bodies: dict[str, int] = {}
         self.collision_shapes: dict[int, int] = {}  # the actors' by geometry (`create_actor`)
         self.gl: GLRenderer | None = None
@@ -209,13 +217,11 @@ class World:
         self.motions: dict[str, TrackMotion] = {
             t.track_id: track_motion(t) for t in scenario.tracks
         }
+        # the actors' shape files in the run's shared folder, where the workers share one
+        shapes = reuse.shared_folder() or self.twin.mesh_dir
         self.bodies = {
             track_id: create_actor(
-                self.client,
-                bp,
-                self.models.get(track_id),
-                self.twin.mesh_dir,
-                self.collision_shapes,
+                self.client, bp, self.models.get(track_id), shapes, self.collision_shapes
             )
             for track_id, bp in self.blueprints.items()
         }
@@ -576,10 +582,12 @@ def world_for(
     read_map: Callable[[str], IntersectionMap],
     renderer: str = "auto",
     frames: range | None = None,
+    plan_for: Callable[[IntersectionMap], TwinPlan] | None = None,
 ) -> World:
     """A world showing `scenario` (only its `frames` where given: `World.replay`): `previous`
     itself when it shows the same map with a renderer that suits (a twin takes a second or
-    two to build) and can still render, else a new one (`previous` closed)."""
+    two to build) and can still render, else a new one (`previous` closed), its twin built from
+    `plan_for(map)` where given (`reuse.twin_plan`: plans kept for reuse)."""
     if previous is not None and (
         previous.intersection_map.map_id != scenario.map_id
         or renderer not in ("auto", previous.renderer)
@@ -588,7 +596,9 @@ def world_for(
         previous.close()
         previous = None
     if previous is None:
-        return World(read_map(scenario.map_id), scenario, renderer=renderer, frames=frames)
+        intersection_map = read_map(scenario.map_id)
+        plan = plan_for(intersection_map) if plan_for is not None else None
+        return World(intersection_map, scenario, renderer, frames=frames, twin_plan=plan)
     previous.replay(scenario, frames)
     return previous
 

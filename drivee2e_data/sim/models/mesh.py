@@ -170,14 +170,26 @@ def shade_normals(
     vertex's position (and joint), unless a face turns more than the crease angle from it;
     elsewhere each face's own."""
     faces = np.repeat(face_normals(positions), 3, axis=0)
-    key = np.column_stack([np.round(positions * 2000).astype(np.int64), joints])
-    _, group = np.unique(key, axis=0, return_inverse=True)
-    group = group.reshape(-1)
+    group = _same_vertex_groups(np.round(positions * 2000).astype(np.int64), joints)
     sums = np.zeros((group.max() + 1, 3))
     np.add.at(sums, group[smooth], faces[smooth])
     mean = sums[group] / np.maximum(np.linalg.norm(sums[group], axis=1, keepdims=True), 1e-12)
     use_mean = smooth & (np.einsum("ij,ij->i", mean, faces) > CREASE_COS)
     return np.where(use_mean[:, None], mean, faces)
+
+
+def _same_vertex_groups(cells: NDArray[np.int64], joints: NDArray[np.int16]) -> NDArray[np.int64]:
+    """`(V,)` a number per vertex shared by the vertices of equal `cells` `(V, 3)` and joint.
+    Packed into one unsigned 64-bit key where every cell fits 16 bits (models within 16 m of
+    their centre at 0.5 mm cells), as a row-wise `np.unique` sorts ten times slower."""
+    if len(cells) and np.abs(cells).max() < 2**15 and joints.min() >= 0 and joints.max() < 2**16:
+        packed = (cells + 2**15).astype(np.uint64)
+        key = (
+            packed[:, 0] << 48 | packed[:, 1] << 32 | packed[:, 2] << 16 | joints.astype(np.uint64)
+        )
+        return np.unique(key, return_inverse=True)[1].reshape(-1)
+    rows = np.column_stack([cells, joints])
+    return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
 
 
 def quads(a: NDArray, b: NDArray, c: NDArray, d: NDArray) -> NDArray[np.float64]:
