@@ -15,12 +15,14 @@ from dataclasses import dataclass, field
 
 # What setting up a clip's world costs a worker, in sensor frames of its work, before a run has
 # measured it (`SetupCosts`): a world on another map, its twin built, and on the map the
-# worker's world shows already, only the actors replaced. With procedural vehicles built once
-# per blueprint, a replay took 0.08-0.22 s and a new twin 0.7-1.0 s on an H100 host, against
-# 0.23 s a sensor frame at 2 Hz (`scripts/bench_collect.py`, docs/benchmarks.md, "twelfth
-# session"); 2 cores set up in 0.06 and 0.4 s, against 0.28 s a frame.
-SETUP_FRAMES = 6
-REPLAY_SETUP_FRAMES = 2
+# worker's world shows already, only the actors replaced. With the twins' plans shared by a
+# run's workers (`sim.reuse`), a later world on another map took 0.14-0.50 s and a replay
+# 0.07-0.23 s on an H100 host, against 0.29 s a sensor frame at 2 Hz (`scripts/bench_collect.py`,
+# docs/benchmarks.md, "fifteenth session"); before, a new twin took 0.7-1.0 s there, and a prior
+# of 6 frames kept the end of a 2 Hz run from being split at all (its set-ups are measured only
+# as the run goes, and at 2 Hz few come before its end).
+SETUP_FRAMES = 3
+REPLAY_SETUP_FRAMES = 1
 # a new world's first frames are slower (programs, buffers, the shadow and paint rasters): one
 # sensor frame more than its set-up
 FIRST_FRAMES_EXTRA = 1
@@ -37,27 +39,30 @@ def sensor_frames(first: int, frames: int, sensor_every: int) -> int:
 
 @dataclass
 class SetupCosts:
-    """A world's set-up in sensor frames of work, from the units a pool has finished: the median
-    set-up of each kind (a new world, a replay) over the mean time a sensor frame took, or
-    `SETUP_FRAMES` and `REPLAY_SETUP_FRAMES` until a kind is seen. A worker's first world is
-    left out: it comes with the process's GL context and compiled programs."""
+    """A world's set-up in sensor frames of work, as a pool measures them: the median set-up of
+    each kind (a new world, a replay), reported as each ends (`add_setup`), over the mean time
+    a sensor frame took in the units ended so far (`add_unit`); `SETUP_FRAMES` and
+    `REPLAY_SETUP_FRAMES` until both are known. A worker's first world is left out: it comes
+    with the process's GL context and compiled programs."""
 
     sensor_every: int = 1
     capture_seconds: float = 0.0  # the units' time less their set-up...
     captured: int = 0  # ...over this many sensor frames
     setups: dict[bool, list[float]] = field(default_factory=lambda: {True: [], False: []})
 
-    def add(
-        self, seconds: float, setup: float, first: int, frames: int, new_world: bool | None
-    ) -> None:
+    def add_setup(self, setup: float, new_world: bool | None) -> None:
+        """A world set up in `setup` seconds; `new_world` whether the worker built a twin
+        (None: the worker's first world, not counted)."""
+        if new_world is not None and setup > 0.0:
+            self.setups[new_world].append(setup)
+
+    def add_unit(self, seconds: float, setup: float, first: int, frames: int) -> None:
         """A finished unit: `seconds` in all, `setup` of them its world's, `frames` from
-        `first`; `new_world` whether its worker built a twin (None: the worker's first)."""
+        `first`."""
         count = sensor_frames(first, frames, self.sensor_every)
         if count:
             self.capture_seconds += seconds - setup
             self.captured += count
-        if new_world is not None and setup > 0.0:
-            self.setups[new_world].append(setup)
 
     def frames(self, new_world: bool) -> int:
         """A set-up of this kind, in sensor frames (its first frames' extra cost included)."""

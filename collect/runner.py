@@ -179,12 +179,13 @@ def run_unit(
     options: CollectOptions,
     on_frame: Callable[[int], None] | None = None,
     claim: Callable[[int], bool] | None = None,
+    on_setup: Callable[[float], None] | None = None,
 ) -> JobResult:
-    """A whole clip into its log, or a segment into its segment file (`claim`: see
-    `segments.collect_segment`)."""
+    """A whole clip into its log, or a segment into its segment file (`claim` and `on_setup`:
+    see `segments.collect_segment`)."""
     if unit.whole:
         return collect_clip(root, unit.scenario_id, options, on_frame)
-    return segments.collect_segment(root, unit, options, on_frame, claim)
+    return segments.collect_segment(root, unit, options, on_frame, claim, on_setup)
 
 
 class _ClipTracker:
@@ -405,19 +406,21 @@ def _existing(scenario_id: str, path: Path) -> JobResult:
 WORKER_FILES_EXIT_PRIORITY = -10
 _frames_done: multiprocessing.Queue | None = None
 _units_done: multiprocessing.Queue | None = None  # (slot, JobResult) as each unit ends
+_setups_done: multiprocessing.Queue | None = None  # (slot, pid, seconds) as each world is set up
 _claims: Any = None  # the pool's `_Claims.shared`
 
 
 def _init_worker(
     frames_done: multiprocessing.Queue,
     units_done: multiprocessing.Queue,
+    setups_done: multiprocessing.Queue,
     started: Any,
     gpus: tuple[int, ...],
     claims: Any,
     plans: str,
 ) -> None:
-    global _frames_done, _units_done, _claims
-    _frames_done, _units_done, _claims = frames_done, units_done, claims
+    global _frames_done, _units_done, _setups_done, _claims
+    _frames_done, _units_done, _setups_done, _claims = frames_done, units_done, setups_done, claims
     reuse.share_in(Path(plans))  # what any worker planned or wrote is there for all
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
@@ -451,15 +454,25 @@ def _pooled_job(
     """A job's units in order, in a pool worker, each claiming its frames in its slot of
     `_claims`; a failed unit does not stop the next. Each unit's result is also sent as it
     ends (`_units_done`), so that the parent writes a clip's log once its last unit is done
-    rather than when the job holding it ends."""
+    rather than when the job holding it ends, and its world's set-up time as the set-up ends
+    (`_setups_done`), so that the parent knows what a world costs before the units end (at 2
+    Hz most end with the run)."""
     frames_done, results = _frames_done, []
     for unit, slot in zip(job, slots, strict=True):
         claim = functools.partial(_Claims.claim, _claims, slot)
-        result = run_unit(root, unit, options, frames_done.put if frames_done else None, claim)
+        on_setup = None
+        if _setups_done is not None:
+            on_setup = functools.partial(_report_setup, _setups_done, slot)
+        on_frame = frames_done.put if frames_done else None
+        result = run_unit(root, unit, options, on_frame, claim, on_setup)
         if _units_done is not None:
             _units_done.put((slot, result))
         results.append(result)
     return results
+
+
+def _report_setup(setups_done: multiprocessing.Queue, slot: int, seconds: float) -> None:
+    setups_done.put((slot, os.getpid(), seconds))
 
 
 class _Claims:
@@ -548,12 +561,12 @@ def _run_pool(
     the collection goes on; the thread makes the log's index rows too. `then` runs after the
     last job, while the workers exit."""
     context = worker_context()
-    frames_done, units_done = context.Queue(), context.Queue()
+    frames_done, units_done, setups_done = context.Queue(), context.Queue(), context.Queue()
     started = context.Value("i", 0)
     units = sum(len(job) for job in jobs)
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
     plans = mesh_folder()  # the run's twin plans and shape files (`reuse`), removed with the pool
-    initargs = (frames_done, units_done, started, gpus, claims.shared, str(plans))
+    initargs = (frames_done, units_done, setups_done, started, gpus, claims.shared, str(plans))
     with (
         _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,
@@ -616,15 +629,18 @@ def _run_pool(
                     return True
             return False
 
-        def measured(unit: WorkUnit, result: JobResult) -> None:
-            """The unit's set-up and frames into `costs`, the map of its worker's world noted."""
-            map_id = maps_of.get(unit.scenario_id, unit.scenario_id)
-            for began, ended, pid, setup, first, frames in result.spans:
-                if not setup:
-                    continue  # refused before it began: no world made
-                new_world = None if pid not in worker_maps else worker_maps[pid] != map_id
-                costs.add(ended - began, setup, first, frames, new_world)
-                worker_maps[pid] = map_id
+        def set_up(slot: int, pid: int, seconds: float) -> None:
+            """A unit's world set up (reported as it was): into `costs` as a new world or a
+            replay by the map the worker's world showed before, which it shows now."""
+            map_id = maps_of.get(unit_in[slot].scenario_id, unit_in[slot].scenario_id)
+            new_world = None if pid not in worker_maps else worker_maps[pid] != map_id
+            costs.add_setup(seconds, new_world)
+            worker_maps[pid] = map_id
+
+        def measured(result: JobResult) -> None:
+            """The unit's frames into `costs` (its set-up came as it ended)."""
+            for began, ended, _, setup, first, frames in result.spans:
+                costs.add_unit(ended - began, setup, first, frames)
 
         def merge(scenario_id: str) -> None:
             running[writers.submit(tracker.write_log, scenario_id)] = scenario_id
@@ -636,7 +652,7 @@ def _run_pool(
                 return
             ended.add(slot)
             unit = unit_in[slot]
-            measured(unit, result)
+            measured(result)
             if (clip := tracker.finished(unit, result)) is not None:
                 merge(clip)
             elif tracker.appends(unit, result):
@@ -658,6 +674,8 @@ def _run_pool(
         while running:
             done, _ = wait(set(running), timeout=0.1, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
+            for slot, pid, seconds in _queued(setups_done):  # worlds as they are set up
+                set_up(slot, pid, seconds)
             for slot, result in _queued(units_done):  # (slot, JobResult) as units end
                 unit_ended(slot, result)
             for future in done:

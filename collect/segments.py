@@ -357,11 +357,13 @@ def collect_segment(
     options: CollectOptions,
     on_frame: Callable[[int], None] | None = None,
     claim: Callable[[int], bool] | None = None,
+    on_setup: Callable[[float], None] | None = None,
 ) -> JobResult:
     """Capture a unit's frames into its segment file (never raises for a bad clip: see
     `job.run_job`). `claim(frame)` is asked before each frame: False ends the segment there
     (another worker took the rest); the file is named for the frames it holds, and none is
-    written when the first frame is refused."""
+    written when the first frame is refused. `on_setup(seconds)` is told what its world's
+    set-up took, once it is done."""
     if unit.whole:
         raise ValueError(f"{unit.scenario_id}: a whole-clip unit writes its log directly")
     folder = segments_dir(root, unit.scenario_id)
@@ -381,6 +383,8 @@ def collect_segment(
         setup = open_clip(
             root, unit.scenario_id, options, range(unit.start, unit.stop), result.stage_seconds
         )
+        if on_setup is not None:
+            on_setup(result.stage_seconds["setup"])
         result.renderer = setup.world.renderer
         folder.mkdir(parents=True, exist_ok=True)
         header = {

@@ -358,8 +358,9 @@ def test_index_columns_are_made_from_buffers_with_the_values_given():
 
 
 def test_a_pool_worker_reports_each_unit_as_it_ends_not_when_its_job_does(monkeypatch):
-    """The parent writes a clip's log once the clip's last unit is in; a job of two units
-    sends the first unit's result before the second begins."""
+    """The parent writes a clip's log once the clip's last unit is in, and measures what a
+    world costs as each is set up: a job of two units sends the first unit's set-up as it ends
+    and its result before the second begins."""
     from drivee2e_data.collect import runner
     from drivee2e_data.collect.job import CollectOptions, JobResult
     from drivee2e_data.collect.segments import WorkUnit
@@ -370,19 +371,27 @@ def test_a_pool_worker_reports_each_unit_as_it_ends_not_when_its_job_does(monkey
         def put(self, item):
             events.append(("reported", item[0], item[1].scenario_id))
 
-    def run_unit(root, unit, options, on_frame, claim):
+    class SetUps:
+        def put(self, item):
+            events.append(("set up", item[0], item[1] == os.getpid(), item[2]))
+
+    def run_unit(root, unit, options, on_frame, claim, on_setup):
         events.append(("began", unit.scenario_id))
+        on_setup(0.25 if unit.scenario_id == "a" else 0.5)
         return JobResult(unit.scenario_id, "collected", frames=unit.frames)
 
     monkeypatch.setattr(runner, "run_unit", run_unit)
     monkeypatch.setattr(runner, "_units_done", Reports())
+    monkeypatch.setattr(runner, "_setups_done", SetUps())
     monkeypatch.setattr(runner, "_frames_done", None)
     job = (WorkUnit("a", 20, 40), WorkUnit("b", 0, 30))
     results = runner._pooled_job(Path("root"), job, CollectOptions(), (3, 4))
     assert [r.scenario_id for r in results] == ["a", "b"]
     assert events == [
         ("began", "a"),
+        ("set up", 3, True, 0.25),
         ("reported", 3, "a"),
         ("began", "b"),
+        ("set up", 4, True, 0.5),
         ("reported", 4, "b"),
     ]

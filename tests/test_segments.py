@@ -320,23 +320,23 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
     running = WorkUnit("a", 0, 100)
     slot = claims.add(running)
     assert all(runner._Claims.claim(claims.shared, slot, f) for f in range(10))
-    # 90 left, a set-up of 6 frames: the thief takes from 10 + (90 + 6) // 2 = 58 on
-    assert balance.SETUP_FRAMES == 6
+    # 90 left, a set-up of 3 frames: the thief takes from 10 + (90 + 3) // 2 = 56 on
+    assert balance.SETUP_FRAMES == 3
     assert claims.left(slot, 1) == 90
-    assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 58, 100)
-    assert runner._Claims.claim(claims.shared, slot, 57)
-    assert not runner._Claims.claim(claims.shared, slot, 58)
-    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 30) // 2 = 70
+    assert claims.split(slot, running, sensor_every=1) == WorkUnit("a", 56, 100)
+    assert runner._Claims.claim(claims.shared, slot, 55)
+    assert not runner._Claims.claim(claims.shared, slot, 56)
+    # at 2 Hz the cut is on a sensor frame: 10 + (90 + 15) // 2 = 62, so 65
     sparse = claims.add(running)
     assert not claims.begun(sparse, running)
     runner._Claims.claim(claims.shared, sparse, 9)
     assert claims.begun(sparse, running)
     assert claims.left(sparse, 5) == 18  # frames 10, 15, .. 95
-    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 70, 100)
-    # a thief whose world shows the clip's map already pays only the actors (2 sensor frames):
-    # 60 left, 10 + (60 + 10) // 2 = 45 on: 5 sensor frames
-    assert balance.REPLAY_SETUP_FRAMES == 2
-    assert claims.split(sparse, running, 5, balance.REPLAY_SETUP_FRAMES) == WorkUnit("a", 45, 70)
+    assert claims.split(sparse, running, sensor_every=5) == WorkUnit("a", 65, 100)
+    # a thief whose world shows the clip's map already pays only the actors (1 sensor frame):
+    # 55 left, 10 + (55 + 5) // 2 = 40 on: 5 sensor frames
+    assert balance.REPLAY_SETUP_FRAMES == 1
+    assert claims.split(sparse, running, 5, balance.REPLAY_SETUP_FRAMES) == WorkUnit("a", 40, 65)
     # a unit not begun goes whole; then nothing is left to split
     waiting = WorkUnit("b", 40, 80)
     later = claims.add(waiting)
@@ -349,49 +349,53 @@ def test_an_idle_worker_takes_the_later_half_of_a_running_unit():
 
 
 def test_set_up_costs_are_measured_in_sensor_frames_once_a_kind_is_seen():
-    """Until a kind of set-up has been seen the constants stand; then the median set-up over the
-    mean time of a sensor frame, a new world's first frames one sensor frame more; a worker's
-    first world (None) counts its frames but not its set-up."""
+    """Until a kind of set-up has been seen, and a unit has ended, the constants stand; then the
+    median set-up over the mean time of a sensor frame, a new world's first frames one sensor
+    frame more; a worker's first world (None) is not counted, its unit's frames are."""
     costs = balance.SetupCosts(sensor_every=5)
-    assert (costs.frames(new_world=True), costs.frames(new_world=False)) == (6, 2)
-    costs.add(seconds=12.0, setup=2.0, first=0, frames=200, new_world=None)  # 40 sensor frames
-    assert costs.frames(new_world=True) == 6
-    costs.add(seconds=4.25, setup=0.25, first=3, frames=80, new_world=False)  # 5, 10 .. 80: 16
-    costs.add(seconds=5.0, setup=1.1, first=0, frames=64, new_world=True)  # 13
-    costs.add(seconds=5.0, setup=0.9, first=0, frames=64, new_world=True)
-    costs.add(seconds=5.0, setup=1.0, first=0, frames=64, new_world=True)
-    # 10 + 4 + 12 s of capture over 40 + 16 + 39 sensor frames: 0.274 s a sensor frame
+    assert (costs.frames(new_world=True), costs.frames(new_world=False)) == (3, 1)
+    costs.add_setup(1.0, new_world=True)  # reported as it ended: no frame time known yet
+    assert costs.frames(new_world=True) == 3
+    costs.add_setup(2.0, new_world=None)
+    costs.add_unit(seconds=12.0, setup=2.0, first=0, frames=200)  # 40 sensor frames
+    assert costs.frames(new_world=False) == 1
+    costs.add_setup(0.25, new_world=False)
+    costs.add_unit(seconds=4.25, setup=0.25, first=3, frames=80)  # 5, 10 .. 80: 16
+    costs.add_setup(1.1, new_world=True)
+    costs.add_setup(0.9, new_world=True)
+    costs.add_unit(seconds=6.0, setup=0.9, first=0, frames=196)  # 40
+    # 10 + 4 + 5.1 s of capture over 40 + 16 + 40 sensor frames: 0.199 s a sensor frame
     assert balance.sensor_frames(3, 80, 5) == 16
-    assert costs.frames(new_world=False) == 1  # 0.25 / 0.274, rounded up
-    assert costs.frames(new_world=True) == 4 + 1  # 1.0 / 0.274 -> 4, and the first frames
+    assert costs.frames(new_world=False) == 2  # 0.25 / 0.199, rounded up
+    assert costs.frames(new_world=True) == 6 + 1  # 1.0 / 0.199 -> 6, and the first frames
 
 
 def test_an_idle_worker_takes_what_ends_a_job_soonest():
-    """The taker's set-up counts: a unit on the map its world shows costs it a replay (2 sensor
-    frames), another map's a new world (6); a begun unit gives half of what is left less that,
+    """The taker's set-up counts: a unit on the map its world shows costs it a replay (1 sensor
+    frame), another map's a new world (3); a begun unit gives half of what is left less that,
     a unit not begun goes whole where its worker would end it later than the taker."""
     maps = {"a": "m1", "b": "m2", "c": "m2"}
     costs = balance.SetupCosts(sensor_every=5)
     on_a = balance.Candidate(0, "a", left=12, begun=True)
     on_b = balance.Candidate(1, "b", left=12, begun=True)
-    # on its own map the taker ends its worker's unit (12 - 2) // 2 = 5 sooner, on the other
-    # (12 - 6) // 2 = 3
-    assert balance.split_order([on_a, on_b], "m2", maps, costs) == [(on_b, 2), (on_a, 6)]
-    assert balance.split_order([on_a, on_b], "m1", maps, costs) == [(on_a, 2), (on_b, 6)]
+    # on its own map the taker ends its worker's unit (12 - 1) // 2 = 5 sooner, on the other
+    # (12 - 3) // 2 = 4
+    assert balance.split_order([on_a, on_b], "m2", maps, costs) == [(on_b, 1), (on_a, 3)]
+    assert balance.split_order([on_a, on_b], "m1", maps, costs) == [(on_a, 1), (on_b, 3)]
     # a fresh worker (no world yet) pays the new world everywhere: the most left first
     longer = balance.Candidate(1, "b", left=18, begun=True)
-    assert balance.split_order([on_a, longer], None, maps, costs) == [(longer, 6), (on_a, 6)]
-    # much more left elsewhere still wins over the cheaper set-up: (18 - 6) // 2 = 6 > 5
-    assert balance.split_order([on_a, longer], "m1", maps, costs) == [(longer, 6), (on_a, 2)]
+    assert balance.split_order([on_a, longer], None, maps, costs) == [(longer, 3), (on_a, 3)]
+    # much more left elsewhere still wins over the cheaper set-up: (18 - 3) // 2 = 7 > 5
+    assert balance.split_order([on_a, longer], "m1", maps, costs) == [(longer, 3), (on_a, 1)]
     # a unit not begun, 7 sensor frames, behind 1 frame of its worker's on the same map: its
-    # worker ends it after 1 + 2 + 7 = 10, a taker on another map after 6 + 7 = 13: left alone;
-    # a taker on its map ends it after 2 + 7 = 9, and its worker after 1
+    # worker ends it after 1 + 1 + 7 = 9, a taker on another map after 3 + 7 = 10: left alone;
+    # a taker on its map ends it after 1 + 7 = 8, and its worker after 1
     behind = balance.Candidate(2, "c", left=7, begun=False, ahead=1, follows_its_map=True)
     assert balance.split_order([behind], "m1", maps, costs) == []
-    assert balance.split_order([behind], "m2", maps, costs) == [(behind, 2)]
-    # behind 12 frames, a taker on another map ends it after 13 against 12 + 2 + 7 = 21
+    assert balance.split_order([behind], "m2", maps, costs) == [(behind, 1)]
+    # behind 12 frames, a taker on another map ends it after 12 against 12 + 1 + 7 = 20
     far = balance.Candidate(2, "c", left=7, begun=False, ahead=12, follows_its_map=True)
-    assert balance.split_order([far, on_a], "m1", maps, costs) == [(far, 6), (on_a, 2)]
+    assert balance.split_order([far, on_a], "m1", maps, costs) == [(far, 3), (on_a, 1)]
 
 
 def test_a_split_unit_still_gives_the_one_worker_log(
