@@ -94,6 +94,9 @@ def test_plans_are_kept_by_map_file_shared_and_made_again_when_it_changes(
     next(shared.glob("*.plan")).write_bytes(b"not a plan")  # damaged: planned anew
     assert pickle.dumps(reuse.twin_plan(root, intersection_map)) == pickle.dumps(first)
     assert planned == [map_id, map_id]
+    reuse.forget_plans()  # and written again whole for the others
+    assert pickle.dumps(reuse.twin_plan(root, intersection_map)) == pickle.dumps(first)
+    assert planned == [map_id, map_id]
 
     path = store.map_path(root, map_id)  # the map file changed: its old plan is not used
     stat = path.stat()

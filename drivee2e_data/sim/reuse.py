@@ -53,10 +53,13 @@ def twin_plan(root: Path, intersection_map: IntersectionMap) -> TwinPlan:
     plan = _kept.get(key)
     if plan is None:
         shared = _shared_path(key, intersection_map.map_id)
-        plan = _read(shared) if shared is not None else None
+        found = shared is not None and shared.exists()
+        plan = _read(shared) if found else None
         if plan is None:
             plan = plan_twin(intersection_map)
-            if shared is not None:
+            # written unless another worker wrote it meanwhile (at a run's start several plan
+            # a map at once); a damaged one is replaced
+            if shared is not None and (found or not shared.exists()):
                 _write(shared, plan)
         _kept[key] = plan
         while len(_kept) > KEPT_PLANS:
