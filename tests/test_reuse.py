@@ -103,7 +103,7 @@ def test_plans_are_kept_by_map_file_shared_and_made_again_when_it_changes(
     os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000))
     reuse.twin_plan(root, intersection_map)
     assert planned == [map_id] * 3
-    assert not list(shared.glob(".*tmp"))  # every plan written whole, then renamed
+    assert not list(shared.glob(".*"))  # every plan written whole, then renamed
 
 
 def test_a_world_refuses_a_plan_of_another_map(synthetic_root: Path):
@@ -128,7 +128,7 @@ def test_actor_shape_files_are_written_once_for_every_world_sharing_the_folder(
         parts = listing.read_text().split()
         assert 1 <= len(parts) <= actors.MAX_PARTS
         assert all((shared / name).stat().st_size > 0 for name in parts)
-    assert not list(shared.glob(".*tmp"))
+    assert not list(shared.glob(".*"))
     written = {p.name: p.stat().st_mtime_ns for p in shared.iterdir()}
 
     def no_parts(model):

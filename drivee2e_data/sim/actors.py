@@ -10,13 +10,13 @@ the simple boxes of before as its visual shape.
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data import store
 from drivee2e_data.scenario import AgentClass, Track
 from drivee2e_data.sim.models import ModelMesh
 from drivee2e_data.sim.obj_text import obj_text
@@ -130,16 +130,10 @@ def _part_files(model: ModelMesh, folder: Path, key: int) -> list[str]:
     names = []
     for index, part in enumerate(convex_parts(model)):
         path = folder / f"actor_{key:016x}_{index:02d}.obj"
-        _write_whole(path, obj_text(part))
+        store.write_bytes_atomic(path, obj_text(part).encode())
         names.append(path.name)
-    _write_whole(listing, "\n".join(names))
+    store.write_bytes_atomic(listing, "\n".join(names).encode())
     return [str(folder / name) for name in names]
-
-
-def _write_whole(path: Path, text: str) -> None:
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(text)
-    os.replace(temporary, path)
 
 
 def create_actor(

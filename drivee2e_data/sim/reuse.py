@@ -12,7 +12,6 @@ its clip later.
 from __future__ import annotations
 
 import collections
-import os
 import pickle
 import zlib
 from pathlib import Path
@@ -89,12 +88,10 @@ def _read(path: Path) -> TwinPlan | None:
 
 
 def _write(path: Path, plan: TwinPlan) -> None:
-    """Write `plan` to `path` whole or not at all (a temporary name, then a rename: another
-    worker writing the same plan at once only replaces it with equal bytes). A folder gone or
-    full only costs the others the planning."""
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    """Write `plan` to `path` whole or not at all (`store.write_bytes_atomic`: another worker
+    writing the same plan at once only replaces it with equal bytes). A folder gone or full
+    only costs the others the planning."""
     try:
-        temporary.write_bytes(pickle.dumps(plan, protocol=pickle.HIGHEST_PROTOCOL))
-        os.replace(temporary, path)
+        store.write_bytes_atomic(path, pickle.dumps(plan, protocol=pickle.HIGHEST_PROTOCOL))
     except OSError:
-        temporary.unlink(missing_ok=True)
+        pass
