@@ -76,7 +76,12 @@ def main() -> None:
     difference = np.abs(a[both] - b[both])
     print(
         f"beams both see: {both.sum()}; range difference median {100 * np.median(difference):.2f} "
-        f"cm, 90th percentile {100 * np.percentile(difference, 90):.1f} cm"
+        f"cm, 90th percentile {100 * np.percentile(difference, 90):.1f} cm, 99th "
+        f"{100 * np.percentile(difference, 99):.1f} cm"
+    )
+    print(
+        f"beams only ray casting sees: {(np.isfinite(a) & ~np.isfinite(b)).sum()}; only the "
+        f"depth images: {(~np.isfinite(a) & np.isfinite(b)).sum()}"
     )
     print(f"rings: {len(np.unique(cast.ring))} and {len(np.unique(read.ring))}")
     counts = [(int((cast.body == k).sum()), int((read.body == k).sum())) for k in agents]

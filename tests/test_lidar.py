@@ -146,3 +146,42 @@ def test_road_and_its_markings_are_one_surface_for_the_depth_lidar():
     world = SimpleNamespace(bodies={"car": 6, "bus": 7}, twin=SimpleNamespace(segmentation=kinds))
     surface = _surfaces(world)
     assert surface.tolist() == [-1, 0, 1, 1, 1, 4, 1, 6, 7]  # indexed by mask value + 1
+
+
+def test_depth_lidar_edges_take_the_side_the_beam_falls_on_and_cast_only_at_agents():
+    """Four beams over one 2x2 block of a 2x3 view. Columns 0-1 show a wall (body 4) at 10 m
+    and 12 m, column 2 a tree (body 5) at 5 m; an agent (body 6) is at row 1, column 2 in the
+    second block. A beam three quarters of the way towards the wall takes the wall's inverse
+    depth interpolated over the wall's pixels alone and the wall's body, with no ray; a beam
+    by the tree takes the tree; one on a single surface is interpolated as before; one whose
+    block shows the agent is to be cast."""
+    from types import SimpleNamespace
+
+    from drivee2e_data.sensors.lidar_depth import _agents, _sample, _Samples, _surfaces
+
+    depth = np.array([[10.0, 12.0, 5.0], [10.0, 12.0, 5.0]], np.float32)
+    mask = np.array([[4, 4, 5], [4, 4, 5]], np.int32)
+    agent_mask = np.array([[4, 4, 5], [4, 4, 6]], np.int32)
+    kinds = {4: "building", 5: "vegetation"}
+    world = SimpleNamespace(bodies={"ego": 0, "car": 6}, twin=SimpleNamespace(segmentation=kinds))
+    surface = _surfaces(world)
+    agent = _agents(world, len(surface))
+    left, right = [0, 1, 3, 4], [1, 2, 4, 5]  # flat pixel indices of the two 2x2 blocks
+
+    def weights(dx: float) -> list[float]:  # half-way down, `dx` along the row
+        return [(1 - dx) / 2, dx / 2, (1 - dx) / 2, dx / 2]
+
+    samples = _Samples(
+        beams=np.arange(4),
+        corners=np.array([left, right, right, right]).T,
+        weights=np.array([weights(0.5), weights(0.25), weights(0.75), weights(0.75)]).T,
+        nearest=np.array([0, 0, 1, 1]),
+        along=np.ones(4),
+    )
+    got, body, cast = _sample(depth, mask, samples, surface, agent)
+    assert got[0] == pytest.approx(1 / (0.5 / 10 + 0.5 / 12))  # one surface: as before
+    assert got[1] == pytest.approx(12.0) and body[1] == 4  # the wall's side of the edge
+    assert got[2] == pytest.approx(5.0) and body[2] == 5  # the tree's side
+    assert not cast.any()  # the twin's own edges need no ray
+    _, _, cast = _sample(depth, agent_mask, samples, surface, agent)
+    assert cast.tolist() == [False, True, True, True]  # every block touching the agent

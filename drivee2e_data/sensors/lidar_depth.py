@@ -5,9 +5,13 @@ the beam pattern's resolution; every beam takes the range the depth image holds 
 The renderer does what ray casting does on the CPU, nearly for free on a GPU. For a plane,
 inverse depth is affine in image coordinates, so a beam between pixel centres takes the bilinear
 interpolation of the four neighbours' inverse depth when all four show the same surface (exact
-on flat surfaces; the road and its markings count as one). Where they show different surfaces (a silhouette, about 5% of the beams), the
-beam is cast as a ray: a nearest-pixel guess there moves a box's outline by up to half a pixel,
-and a box top lying along a beam ring then gains or loses a whole row of points. It sees what the cameras see: agents' visual shapes, which are their collision
+on flat surfaces; the road and its markings count as one). Where they show different surfaces (a
+silhouette, about 5% of the beams) and one of them is an agent, the beam is cast as a ray: a
+nearest-pixel guess there moves a box's outline by up to half a pixel, and a box top lying along
+a beam ring then gains or loses a whole row of points. At the twin's own silhouettes (a tree
+before a wall, a kerb, about nine in ten of them) the beam takes the nearest pixel's range and
+body: no box counts those points, and half a pixel (a tenth of a degree) is within a real
+beam's divergence. It sees what the cameras see: agents' visual shapes, which are their collision
 shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
 `sensors/lidar.py` (ray casting) stays the reference; `tests/test_lidar.py` checks they agree.
 """
@@ -141,8 +145,9 @@ def depth_sweep(
     row_scale: float = ROW_SCALE,
 ) -> LidarSweep:
     """One full sweep from the LiDAR at `sensor_to_world` (4x4), read from `world`'s renders;
-    beams at silhouettes (where neighbouring pixels show different surfaces, about 5% of them)
-    are cast as rays instead, so edges fall exactly where ray casting puts them. `paint` gives
+    beams at an agent's silhouette (where neighbouring pixels show different surfaces, one of
+    them an agent) are cast as rays instead, so agents' outlines fall exactly where ray casting
+    puts them. `paint` gives
     road hits their markings' intensity, as in `lidar.sweep`; `oversample` sets the views'
     pixels per azimuth step and `row_scale` their rows per column's worth of angle."""
     layout = _layout(
@@ -161,6 +166,7 @@ def depth_sweep(
     body = np.full(len(directions), -1, np.int64)
     edge = np.zeros(len(directions), dtype=bool)
     surface = _surfaces(world)
+    agent = _agents(world, len(surface))
     for view, samples in enumerate(layout.views):
         centre_azimuth = view * 2 * math.pi / VIEWS
         forward = rotation @ np.array([math.cos(centre_azimuth), math.sin(centre_azimuth), 0.0])
@@ -177,7 +183,9 @@ def depth_sweep(
             frustum=geometry.frustum,
             look="labels",
         )
-        depth, hit_body, at_edge = _sample(image.depth_m, image.segmentation, samples, surface)
+        depth, hit_body, at_edge = _sample(
+            image.depth_m, image.segmentation, samples, surface, agent
+        )
         distance[samples.beams] = depth / samples.along
         body[samples.beams] = hit_body
         edge[samples.beams] = at_edge
@@ -213,22 +221,44 @@ def _surfaces(world) -> NDArray[np.int64]:
     return surface
 
 
+def _agents(world, size: int) -> NDArray[np.bool_]:
+    """Whether each mask value `v` (at index `v + 1`, `size` of them) is an agent's body."""
+    agent = np.zeros(size, dtype=bool)
+    bodies = [body for body in world.bodies.values() if body + 1 < size]
+    agent[np.asarray(bodies, dtype=np.int64) + 1] = True
+    return agent
+
+
 def _sample(
     depth_m: NDArray[np.float32],
     mask: NDArray[np.int32],
     samples: _Samples,
     surface: NDArray[np.int64],
+    agent: NDArray[np.bool_],
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
-    """Depth and body along each beam, and whether it lies at an edge: inverse depth
-    interpolated bilinearly where the four neighbouring pixels show one surface (`surface`,
-    indexed by mask value + 1), the nearest pixel's depth and body otherwise (an edge)."""
+    """Depth and body along each beam, and whether it needs a ray. Where the four neighbouring
+    pixels show one surface (`surface`, indexed by mask value + 1), inverse depth interpolated
+    bilinearly and the nearest pixel's body. At an edge, the beam lies on the surface whose
+    pixels carry most of its bilinear weight (at a straight edge: the side it falls on) and
+    takes the interpolation over that surface's pixels alone; it is to be cast where one of
+    the four shows an agent (`agent`, indexed alike)."""
     corner_bodies = mask.ravel()[samples.corners]
     corner_bodies = np.where(corner_bodies >= 0, corner_bodies & ((1 << 24) - 1), -1)
     corner_depths = depth_m.ravel()[samples.corners].astype(np.float64)
     corner_surfaces = surface[corner_bodies + 1]
     one_surface = (corner_surfaces == corner_surfaces[0]).all(axis=0)
-    same = one_surface & (corner_surfaces[0] >= 0)
-    inverse = (samples.weights / corner_depths).sum(axis=0)
-    picked = np.arange(len(samples.beams))
-    depth = np.where(same, 1.0 / inverse, corner_depths[samples.nearest, picked])
-    return depth, corner_bodies[samples.nearest, picked].astype(np.int64), ~one_surface
+    weights = samples.weights
+    depth = 1.0 / (weights / corner_depths).sum(axis=0)
+    body = corner_bodies[samples.nearest, np.arange(len(samples.beams))].astype(np.int64)
+    edges = np.flatnonzero(~one_surface)
+    if len(edges):
+        surfaces, edge_weights = corner_surfaces[:, edges], weights[:, edges]
+        alike = surfaces[:, None, :] == surfaces[None, :, :]  # (4, 4, E)
+        # each corner's surface's share of the weight; ties go to the nearer corner's
+        share = (alike * edge_weights[None]).sum(axis=1) + 1e-6 * edge_weights
+        winner = surfaces[np.argmax(share, axis=0), np.arange(len(edges))]
+        on = np.where(surfaces == winner, edge_weights, 0.0)
+        depth[edges] = on.sum(axis=0) / (on / corner_depths[:, edges]).sum(axis=0)
+        body[edges] = corner_bodies[np.argmax(on, axis=0), edges]
+    at_agent = ~one_surface & agent[corner_bodies + 1].any(axis=0)
+    return depth, body, at_agent
