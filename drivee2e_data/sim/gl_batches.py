@@ -12,6 +12,7 @@ that sees a fifth of the scene paid for all of it, thirteen views a frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -157,13 +158,18 @@ class DrawBatches:
             np.vstack([self.high_m, positions.max(axis=0)]),
         )
 
+    @cached_property
+    def _corners(self) -> NDArray[np.float64]:
+        """(B, 8, 3) the corners of each batch's box."""
+        return np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
+
     def visible(self, matrix: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(B,) whether each batch's box may show in the view of `matrix` (world to clip space,
         4x4, perspective or orthographic): false only where all eight corners lie beyond one
         of the frustum's six planes."""
         if not len(self.group):
             return np.zeros(0, bool)
-        corners = np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
+        corners = self._corners
         clip = corners @ matrix[:3, :3].T + matrix[:3, 3]  # (B, 8, 3)
         w = corners @ matrix[3, :3] + matrix[3, 3]  # (B, 8)
         outside = np.zeros(len(self.group), bool)
@@ -184,29 +190,28 @@ class DrawBatches:
         for all), and runs less than `MERGE_GAP_VERTICES` apart joined with what lies between;
         batches of the groups in `skip`, and those `excluded` `(B,)` (another level of detail's),
         left out and never drawn as part of a gap."""
-        draws: list[tuple[int, int, int]] = []
         skipped = np.isin(self.group, list(skip))
         if excluded is not None:
             skipped |= excluded
         # skipped batches before each index: a draw never spans one, not even in a gap
-        barriers = np.concatenate(([0], np.cumsum(skipped)))
-        last = -1
-        for index in np.flatnonzero(visible & ~skipped):
-            group, first, count = (
-                int(self.group[index]),
-                int(self.first[index]),
-                int(self.count[index]),
-            )
-            if draws and barriers[index] == barriers[last]:
-                last_group, last_first, last_count = draws[-1]
-                gap = first - (last_first + last_count)
-                if (not by_group or last_group == group) and gap <= MERGE_GAP_VERTICES:
-                    draws[-1] = (last_group, last_first, first + count - last_first)
-                    last = index
-                    continue
-            draws.append((group, first, count))
-            last = index
-        return draws
+        barriers = np.cumsum(skipped)
+        drawn = np.flatnonzero(visible & ~skipped)
+        if not len(drawn):
+            return []
+        group, first, count = self.group[drawn], self.first[drawn], self.count[drawn]
+        # each drawn batch joins the one before it when nothing skipped lies between, the gap
+        # is short, and (by group) the two share a group
+        joins = (barriers[drawn[1:]] == barriers[drawn[:-1]]) & (
+            first[1:] - (first[:-1] + count[:-1]) <= MERGE_GAP_VERTICES
+        )
+        if by_group:
+            joins &= group[1:] == group[:-1]
+        starts = np.flatnonzero(np.concatenate(([True], ~joins)))
+        ends = np.append(starts[1:], len(drawn)) - 1
+        counts = first[ends] + count[ends] - first[starts]
+        return list(
+            zip(group[starts].tolist(), first[starts].tolist(), counts.tolist(), strict=True)
+        )
 
 
 def level_of_detail(batches: DrawBatches, eye_m: NDArray[np.float64]) -> NDArray[np.bool_]:
