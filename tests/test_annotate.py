@@ -141,21 +141,24 @@ def test_visible_share_from_depth_agrees_with_the_body_mask(tmp_path):
     assert not np.any((by_depth >= 0.8) & (by_mask == 0.0))
 
 
-@pytest.mark.parametrize("renderer", ["gl", "tiny"])
-def test_a_box_half_hidden_behind_a_wall_reads_about_half_visible(renderer):
+@pytest.mark.parametrize(
+    ("renderer", "car_x", "wall_x"), [("gl", 25.0, 14.0), ("tiny", 25.0, 14.0), ("gl", 12.0, 7.0)]
+)
+def test_a_box_half_hidden_behind_a_wall_reads_about_half_visible(renderer, car_x, wall_x):
     """A wall between the camera and a car 20 m ahead, its edge on the line of sight to the car's
     centre: the half of the box behind it is hidden, the other half seen (with either kind of
-    depth: float from the GL renderer, 16-bit from pybullet's)."""
+    depth: float from the GL renderer, 16-bit from pybullet's). The car 7 m ahead fills enough of
+    the image to be sampled on a grid (`annotate._covered_pixels`), and reads the same."""
+    from drivee2e_data.sensors.annotate import DEPTH_SAMPLES, projected_area
     from drivee2e_data.sim.gl_renderer import gl_available
 
     if renderer == "gl" and not gl_available():
         pytest.skip("no OpenGL context (EGL) here")
     camera_x = 5.0 - 1.4 + default_rig().camera("CAM_FRONT").sensor_to_ego[0, 3]
-    wall_x = 14.0
     # the wall covers y > 0 along the ray from the camera to the car's centre line
     wall = Building("wall", np.array([[wall_x, 0.0], [wall_x + 1.0, 0.0], [wall_x + 1.0, 6.0],
                                       [wall_x, 6.0]]), 8.0)  # fmt: skip
-    scenario = small_scenario(FRAMES, tracks=(_parked("ego", 5.0), _parked("hidden", 25.0)),
+    scenario = small_scenario(FRAMES, tracks=(_parked("ego", 5.0), _parked("hidden", car_x)),
                               ego_id="ego")  # fmt: skip
     shares = {}
     for name, buildings in (("open", ()), ("half", (wall,))):
@@ -167,8 +170,10 @@ def test_a_box_half_hidden_behind_a_wall_reads_about_half_visible(renderer):
             frame = render(world, default_rig().camera("CAM_FRONT"), ego_to_world, mask=False)
             corners = box_corners_3d(scenario.track("hidden"), 0, world.blueprints["hidden"].size_m)
             shares[name] = visible_share(frame, world.bodies["hidden"], corners, ego_to_world)
+            area_px = projected_area(frame, corners, ego_to_world).area
         finally:
             world.close()
     assert camera_x < wall_x
+    assert (area_px > 16 * DEPTH_SAMPLES) == (car_x < 20.0)  # the near car: a grid of pixels
     assert shares["open"] > 0.9
     assert 0.35 < shares["half"] < 0.65
