@@ -124,9 +124,9 @@ def intensities(
     marking the paint raster shows at `hit_xy_m` `(N, 2)` (world frame), if any."""
     intensity = intensity_table(kinds, int(body.max(initial=0)))[body]
     if paint is not None:
-        road = np.isin(body, [b for b, kind in kinds.items() if kind == "road"])
-        codes = paint.kind_codes(hit_xy_m[road])
-        painted = np.flatnonzero(road)[codes > 0]
+        road = np.flatnonzero(np.isin(body, [b for b, kind in kinds.items() if kind == "road"]))
+        codes = paint.kind_codes(np.take(hit_xy_m, road, axis=0))
+        painted = road[codes > 0]
         marks = np.array([INTENSITY[kind] for kind in paint.kinds], np.float32)
         intensity[painted] = marks[codes[codes > 0] - 1]
     return intensity

@@ -194,11 +194,13 @@ def depth_sweep(
     body[edges], distance[edges] = cast(
         world.client, origin, world_directions[edges], lidar.range_m
     )
-    hit = (body >= 0) & (distance <= lidar.range_m)
+    # rows taken by index (`np.take`): a boolean mask over (R, 3) rows costs numpy 2-3x more
+    hit = np.flatnonzero((body >= 0) & (distance <= lidar.range_m))
     hit_body = body[hit].astype(np.int32)
-    hit_xy = origin[:2] + world_directions[hit, :2] * distance[hit, None]
+    hit_distance = distance[hit, None]
+    hit_xy = origin[:2] + np.take(world_directions, hit, axis=0)[:, :2] * hit_distance
     return LidarSweep(
-        points_m=(directions[hit] * distance[hit, None]).astype(np.float32),
+        points_m=(np.take(directions, hit, axis=0) * hit_distance).astype(np.float32),
         intensity=intensities(world.twin.segmentation, hit_body, hit_xy, paint),
         ring=layout.ring[hit],
         body=hit_body,
@@ -242,10 +244,10 @@ def _sample(
     pixels carry most of its bilinear weight (at a straight edge: the side it falls on) and
     takes the interpolation over that surface's pixels alone; it is to be cast where one of
     the four shows an agent (`agent`, indexed alike)."""
-    corner_bodies = mask.ravel()[samples.corners]
+    corner_bodies = np.take(mask, samples.corners)  # of the flattened image
     corner_bodies = np.where(corner_bodies >= 0, corner_bodies & ((1 << 24) - 1), -1)
-    corner_depths = depth_m.ravel()[samples.corners].astype(np.float64)
-    corner_surfaces = surface[corner_bodies + 1]
+    corner_depths = np.take(depth_m, samples.corners).astype(np.float64)
+    corner_surfaces = np.take(surface, corner_bodies + 1)
     one_surface = (corner_surfaces == corner_surfaces[0]).all(axis=0)
     weights = samples.weights
     depth = 1.0 / (weights / corner_depths).sum(axis=0)
@@ -260,5 +262,6 @@ def _sample(
         on = np.where(surfaces == winner, edge_weights, 0.0)
         depth[edges] = on.sum(axis=0) / (on / corner_depths[:, edges]).sum(axis=0)
         body[edges] = corner_bodies[np.argmax(on, axis=0), edges]
-    at_agent = ~one_surface & agent[corner_bodies + 1].any(axis=0)
+    at_agent = np.zeros(len(samples.beams), dtype=bool)
+    at_agent[edges] = np.take(agent, corner_bodies[:, edges] + 1).any(axis=0)
     return depth, body, at_agent
