@@ -9,9 +9,10 @@ on flat surfaces; the road and its markings count as one). Where they show diffe
 silhouette, about 5% of the beams) and one of them is an agent, the beam is cast as a ray: a
 nearest-pixel guess there moves a box's outline by up to half a pixel, and a box top lying along
 a beam ring then gains or loses a whole row of points. At the twin's own silhouettes (a tree
-before a wall, a kerb, about nine in ten of them) the beam takes the nearest pixel's range and
-body: no box counts those points, and half a pixel (a tenth of a degree) is within a real
-beam's divergence. It sees what the cameras see: agents' visual shapes, which are their collision
+before a wall, a kerb, about nine in ten of them) the beam takes the surface that carries most
+of its bilinear weight, interpolated over that surface's pixels: no box counts those points,
+and the side of the edge is then off by at most half a pixel (a tenth of a degree, within a
+real beam's divergence). It sees what the cameras see: agents' visual shapes, which are their collision
 shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
 `sensors/lidar.py` (ray casting) stays the reference; `tests/test_lidar.py` checks they agree.
 """
@@ -147,9 +148,9 @@ def depth_sweep(
     """One full sweep from the LiDAR at `sensor_to_world` (4x4), read from `world`'s renders;
     beams at an agent's silhouette (where neighbouring pixels show different surfaces, one of
     them an agent) are cast as rays instead, so agents' outlines fall exactly where ray casting
-    puts them. `paint` gives
-    road hits their markings' intensity, as in `lidar.sweep`; `oversample` sets the views'
-    pixels per azimuth step and `row_scale` their rows per column's worth of angle."""
+    puts them. `paint` gives road hits their markings' intensity, as in `lidar.sweep`;
+    `oversample` sets the views' pixels per azimuth step and `row_scale` their rows per
+    column's worth of angle."""
     layout = _layout(
         lidar.channels,
         lidar.upper_deg,
@@ -164,7 +165,7 @@ def depth_sweep(
     rotation = sensor_to_world[:3, :3]
     distance = np.full(len(directions), np.nan)
     body = np.full(len(directions), -1, np.int64)
-    edge = np.zeros(len(directions), dtype=bool)
+    needs_ray = np.zeros(len(directions), dtype=bool)
     surface = _surfaces(world)
     agent = _agents(world, len(surface))
     for view, samples in enumerate(layout.views):
@@ -183,17 +184,15 @@ def depth_sweep(
             frustum=geometry.frustum,
             look="labels",
         )
-        depth, hit_body, at_edge = _sample(
+        depth, hit_body, at_agent = _sample(
             image.depth_m, image.segmentation, samples, surface, agent
         )
         distance[samples.beams] = depth / samples.along
         body[samples.beams] = hit_body
-        edge[samples.beams] = at_edge
+        needs_ray[samples.beams] = at_agent
     world_directions = directions @ rotation.T
-    edges = np.flatnonzero(edge)
-    body[edges], distance[edges] = cast(
-        world.client, origin, world_directions[edges], lidar.range_m
-    )
+    rays = np.flatnonzero(needs_ray)
+    body[rays], distance[rays] = cast(world.client, origin, world_directions[rays], lidar.range_m)
     # rows taken by index (`np.take`): a boolean mask over (R, 3) rows costs numpy 2-3x more
     hit = np.flatnonzero((body >= 0) & (distance <= lidar.range_m))
     hit_body = body[hit].astype(np.int32)
@@ -226,8 +225,7 @@ def _surfaces(world) -> NDArray[np.int64]:
 def _agents(world, size: int) -> NDArray[np.bool_]:
     """Whether each mask value `v` (at index `v + 1`, `size` of them) is an agent's body."""
     agent = np.zeros(size, dtype=bool)
-    bodies = [body for body in world.bodies.values() if body + 1 < size]
-    agent[np.asarray(bodies, dtype=np.int64) + 1] = True
+    agent[np.asarray(list(world.bodies.values()), dtype=np.int64) + 1] = True
     return agent
 
 
