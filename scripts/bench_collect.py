@@ -5,7 +5,8 @@ By default, what a user runs: the real mix.
     python scripts/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
         [--gpus all|0,1] [--sensor-hz 10|2] [--identical K] [--json FILE] [--timeline PNG]
 
-makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day), collects it whole
+makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day; `--data DIR` copies
+a set made before instead), collects it whole
 (or `--max-frames` frames a clip) the way `drivee2e collect DATA --workers auto` does (the CLI's
 own planning, `cli.collection.plan_collect`), and prints frames/s, the wall time against the
 summed work of all units divided by the workers (the straggler share), a stage table per
@@ -43,6 +44,7 @@ import dataclasses
 import io
 import itertools
 import json
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -82,6 +84,11 @@ def main() -> None:
     parser.add_argument("--single", action="store_true", help="one clip copied per worker")
     parser.add_argument("--clips", type=int, default=16, help="real mix: clips of synth")
     parser.add_argument("--max-frames", type=int, default=None, help="real mix: frames a clip")
+    parser.add_argument(
+        "--data", type=Path, default=None,
+        help="real mix: copy this data root's scenarios and maps instead of running synth "
+        "(its logs are neither read nor touched)",
+    )  # fmt: skip
     parser.add_argument("--gpus", default="all", help="real mix: as drivee2e collect --gpus")
     parser.add_argument("--sensor-hz", default="10", help="real mix: as drivee2e collect")
     parser.add_argument(
@@ -217,10 +224,12 @@ def mix(args: argparse.Namespace) -> None:
     """The real mix through the CLI's planning; see the module docstring."""
     with tempfile.TemporaryDirectory() as folder:
         root = Path(folder) / "data"
-        with contextlib.redirect_stdout(io.StringIO()):
-            cli_main(
-                ["synth", "--out", str(root), "--clips", str(args.clips), "--seed", str(args.seed)]
-            )
+        if args.data is not None:
+            copy_scenarios(args.data, root)
+        else:
+            synth = ["synth", "--out", str(root), "--clips", str(args.clips)]
+            with contextlib.redirect_stdout(io.StringIO()):
+                cli_main([*synth, "--seed", str(args.seed)])
         argv = ["collect", str(root), "--workers", args.workers or "auto", "--gpus", args.gpus]
         argv += ["--sensor-hz", args.sensor_hz]
         if args.max_frames:
@@ -246,7 +255,7 @@ def mix(args: argparse.Namespace) -> None:
     even = work / summary.workers
     frames = summary.frames
     print(
-        f"real mix: {len(clips)} clips of synth --seed {args.seed}, "
+        f"real mix: {len(clips)} clips of {args.data or f'synth --seed {args.seed}'}, "
         f"{'whole' if not args.max_frames else f'{args.max_frames} frames a clip'}; "
         f"renderer {summary.results[0].renderer}, {planned.options.lidar} LiDAR, "
         f"{summary.workers} workers{f' on GPUs {planned.gpus}' if planned.gpus else ''}, "
@@ -297,6 +306,16 @@ def mix(args: argparse.Namespace) -> None:
             "conditions": {"/".join(k): v for k, v in rows.items()}, "wall_breakdown": lost,
             "started": summary.started, "spans": {r.scenario_id: r.spans for r in summary.results},
         }, indent=1))  # fmt: skip
+
+
+def copy_scenarios(source: Path, root: Path) -> None:
+    """`source`'s clips and maps (everything but its logs) copied to `root`, so that a set made
+    once is collected afresh by every run of this script."""
+    if not (source / "scenarios").is_dir():
+        raise SystemExit(
+            f"--data {source}: no scenarios/ folder (expected a `drivee2e synth` root)"
+        )
+    shutil.copytree(source, root, ignore=shutil.ignore_patterns("logs"))
 
 
 def wall_breakdown(summary: CollectSummary, wall: float) -> dict[str, float]:

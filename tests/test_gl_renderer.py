@@ -151,6 +151,47 @@ def test_the_same_frame_is_the_same_image_twice_and_in_another_world(site):
         assert np.array_equal(image.segmentation, first.segmentation)
 
 
+def test_views_read_through_pixel_buffers_are_the_views_read_at_once(site):
+    """On a GPU the renderer queues reads into pixel buffers (`gl_readback`), so that a caller
+    draws its next view before it takes this one's pixels. Forced here on llvmpipe: three views
+    drawn into the same framebuffer before any is read (the LiDAR's way), then taken in turn,
+    and a fourth through the buffers they freed, are byte for byte the views read at once."""
+    intersection_map, scenario = site
+    with World(intersection_map, scenario, renderer="gl") as world:
+        ego = world.scenario.ego
+        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), ego.track_id)
+        world.set_time(20)
+        eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
+
+        def toward(yaw: float, segmentation: bool, look: str = "camera"):
+            target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
+            return world.render_later(eye, target, 320, 180, 40.0, segmentation=segmentation,
+                                      near_m=0.5, look=look)  # fmt: skip
+
+        views = [(0.0, True, "camera"), (2.0, False, "camera"), (4.0, True, "labels")]
+        at_once = [toward(*view)() for view in views]
+        assert not world.gl.readback.queued  # llvmpipe reads at once by itself
+        world.gl.readback = gl_renderer.PixelReads(world.gl.context, queued=True)
+        target = eye + 10 * np.array([1.0, 0.0, 0.0])
+        world.render(eye, target, 320, 180, 40.0, near_m=0.5)
+        assert world.gl.readback.free == {}  # `render` reads at once even so
+        pending = [toward(*view) for view in views]
+        queued = [taking() for taking in pending]
+        queued.append(toward(*views[0])())  # the first view's buffers again
+        at_once.append(at_once[0])
+    assert len(world.gl.readback.free) == 0  # released with the world
+    for ours, expected in zip(queued, at_once, strict=True):
+        assert np.array_equal(ours.rgb, expected.rgb)
+        assert np.array_equal(ours.depth_m, expected.depth_m)
+        if expected.segmentation is None:
+            assert ours.segmentation is None
+        else:
+            assert np.array_equal(ours.segmentation, expected.segmentation)
+    assert not np.array_equal(queued[0].rgb, queued[1].rgb)  # three different views
+    assert not np.array_equal(queued[0].depth_m, queued[2].depth_m)
+    assert queued[2].rgb.max() == 0  # a labels view draws no colour
+
+
 def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):
     """Collection syncs each frame twice (the cameras with the ego hidden, the top view with it
     shown); the actors whose pose did not change keep their placed vertices. The ego's body

@@ -168,22 +168,28 @@ def depth_sweep(
     needs_ray = np.zeros(len(directions), dtype=bool)
     surface = _surfaces(world)
     agent = _agents(world, len(surface))
-    for view, samples in enumerate(layout.views):
+    # all six views drawn before any is read: on a GPU they come back together, one wait a sweep
+    drawn = []
+    for view in range(len(layout.views)):
         centre_azimuth = view * 2 * math.pi / VIEWS
         forward = rotation @ np.array([math.cos(centre_azimuth), math.sin(centre_azimuth), 0.0])
-        image = world.render(
-            origin,
-            origin + forward,
-            geometry.width,
-            geometry.height,
-            0.0,
-            far_m=lidar.range_m,
-            segmentation=True,
-            near_m=NEAR_M,
-            up=rotation[:, 2],
-            frustum=geometry.frustum,
-            look="labels",
+        drawn.append(
+            world.render_later(
+                origin,
+                origin + forward,
+                geometry.width,
+                geometry.height,
+                0.0,
+                far_m=lidar.range_m,
+                segmentation=True,
+                near_m=NEAR_M,
+                up=rotation[:, 2],
+                frustum=geometry.frustum,
+                look="labels",
+            )
         )
+    for samples, pending in zip(layout.views, drawn, strict=True):
+        image = pending()
         depth, hit_body, at_agent = _sample(
             image.depth_m, image.segmentation, samples, surface, agent
         )

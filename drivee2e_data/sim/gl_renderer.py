@@ -41,6 +41,7 @@ from drivee2e_data.sim.gl_batches import (
     in_draw_order,
     level_of_detail,
 )
+from drivee2e_data.sim.gl_readback import PendingPixels, PixelReads, Read
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -254,6 +255,41 @@ class SceneLights:
     shadow_key: object = None
 
 
+class PendingView:
+    """A view drawn whose pixels may still be on their way from the GPU (`GLRenderer.queue`);
+    `result` waits for them: RGB `(H, W, 3)`, depth in metres `(H, W)` and the body ids
+    `(H, W)` (-1 for none) where they were asked for."""
+
+    def __init__(
+        self,
+        context,
+        pixels: PendingPixels,
+        width: int,
+        height: int,
+        colour: bool,
+        segmentation: bool,
+    ) -> None:
+        self.context, self.pixels = context, pixels
+        self.width, self.height = width, height
+        self.colour, self.segmentation = colour, segmentation
+
+    def result(self) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
+        import cv2
+
+        with current(self.context):
+            arrays = list(self.pixels.result())
+        if self.colour:
+            rgb = cv2.cvtColor(arrays.pop(0), cv2.COLOR_RGBA2RGB)
+        else:
+            rgb = np.zeros((self.height, self.width, 3), np.uint8)
+        depth_m = arrays.pop(0)
+        body = None
+        if self.segmentation:
+            body = arrays.pop(0).astype(np.int32)
+            body -= 1
+        return rgb, depth_m, body
+
+
 class GLRenderer:
     """Draws one pybullet client's world: the twin's `static_meshes` into a buffer once (in the
     order given); every other body's pose read again at each `sync`, drawn from its procedural
@@ -332,6 +368,8 @@ class GLRenderer:
         self.shadowed: object = None
         self.lights = SceneLights()
         self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
+        # queued into pixel buffers on a GPU, read at once where GL draws on the CPU
+        self.readback = PixelReads(context, queued=not rasterises_on_cpu())
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -665,7 +703,26 @@ class GLRenderer:
         look: str = "camera",
         casters_drawn: bool = False,
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
-        """RGB `(H, W, 3)`, the depth along the view axis `(H, W)` in metres (`far_m` where
+        """The view drawn and read back at once (`queue`, unqueued, then its `result`)."""
+        return self.queue(
+            view, projection, width, height, segmentation, far_m, look, casters_drawn, False
+        ).result()
+
+    def queue(
+        self,
+        view: Sequence[float],
+        projection: Sequence[float],
+        width: int,
+        height: int,
+        segmentation: bool,
+        far_m: float,
+        look: str = "camera",
+        casters_drawn: bool = False,
+        queued: bool = True,
+    ) -> PendingView:
+        """The view drawn, its pixels on their way back (`gl_readback`: with `queued`, on a GPU,
+        the caller draws its next views while they come; `PendingView.result` waits). Its
+        result: RGB `(H, W, 3)`, the depth along the view axis `(H, W)` in metres (`far_m` where
         nothing is drawn) and, with `segmentation`, the body id per pixel `(H, W)` (-1 for
         none), for pybullet's column-major `view` and perspective `projection` matrices; row 0
         is the top of the image. `look`: "camera" (the clip's weather and light), "plain"
@@ -675,7 +732,6 @@ class GLRenderer:
         moving bodies that only cast shadows (`SceneLights.casters`: the ego, hidden from its
         own cameras) are drawn too, as they would be shown: the top view of a camera frame's
         state, without syncing the bodies again (4 ms of a frame on llvmpipe)."""
-        import cv2
         import moderngl
 
         if look not in LOOKS:
@@ -749,28 +805,20 @@ class GLRenderer:
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
             # it (RGBA) and its alpha dropped by OpenCV: asking GL for RGB makes the driver
             # convert on the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
-            if "rgba" in outputs:
-                rgba = np.empty((height, width, 4), np.uint8)
-                framebuffer.read_into(rgba, components=4, attachment=0)
-                rgb = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
-            else:
-                rgb = np.zeros((height, width, 3), np.uint8)
-            depth_m = np.empty((height, width), np.float32)
-            framebuffer.read_into(depth_m, components=1, attachment=outputs.index("depth"),
-                                  dtype="f4")  # fmt: skip
-            body = None
-            if segmentation:
-                ids = np.empty((height, width), np.float32)
-                framebuffer.read_into(ids, components=1, attachment=outputs.index("body"),
-                                      dtype="f4")  # fmt: skip
-                body = ids.astype(np.int32)
-                body -= 1
-        return rgb, depth_m, body
+            reads = tuple(
+                Read(outputs.index(name), 4, "f1") if name == "rgba" else
+                Read(outputs.index(name), 1, "f4")
+                for name in ("rgba", "depth", "body")
+                if name in outputs and (name != "body" or segmentation)
+            )  # fmt: skip
+            pixels = self.readback.read(framebuffer, reads, width, height, queued)
+        return PendingView(self.context, pixels, width, height, "rgba" in outputs, segmentation)
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the
         process's next world)."""
         with current(self.context):
+            self.readback.release()
             for framebuffer in self.framebuffers.values():
                 for attachment in (*framebuffer.color_attachments, framebuffer.depth_attachment):
                     attachment.release()

@@ -406,7 +406,11 @@ class World:
         )
         return np.asarray(position), float(self.p.getEulerFromQuaternion(orientation)[2])
 
-    def render(
+    def render(self, *args, **kwargs) -> Image:
+        """The image `render_later` draws, its pixels read at once (`queued` False)."""
+        return self.render_later(*args, queued=False, **kwargs)()
+
+    def render_later(
         self,
         eye_m: NDArray[np.float64],
         target_m: NDArray[np.float64],
@@ -421,8 +425,14 @@ class World:
         frustum: tuple[float, float, float, float] | None = None,
         look: str = "camera",
         casters_drawn: bool = False,
-    ) -> Image:
-        """A `width` x `height` image from a pinhole camera at `eye_m` looking at `target_m`, `up`
+        queued: bool = True,
+    ) -> Callable[[], Image]:
+        """The image drawn, returned by the function this returns: with the GL renderer on a
+        GPU and `queued`, its pixels come back through pixel buffers while the caller draws its
+        next views (`GLRenderer.queue`); else, and with pybullet's renderers, they are read at
+        once. Queued reads pay for one copy more on the CPU: worth it for small views drawn in
+        a row (the LiDAR's six), not for a camera's 1600x900 (docs/benchmarks.md). The image: a
+        `width` x `height` image from a pinhole camera at `eye_m` looking at `target_m`, `up`
         pointing up in the image (world z unless given). With `native`, the image as drawn: with
         EGL, at most `EGL_WINDOW_PX` (`drawn_size`), to be resized by the caller. `frustum`
         (left, right, bottom, top), tangents of the image's edges off the view axis, replaces
@@ -452,11 +462,16 @@ class World:
                 left, right, bottom, top, near_m, far_m, physicsClientId=self.client
             )
         drawn_width, drawn_height = self.drawn_size(width, height)
+        if self.gl is not None:
+            self.gl.sync(self.state, self.animations, self.scene_lights)
+            pending = self.gl.queue(view, projection, drawn_width, drawn_height, segmentation,
+                                    far_m, look, casters_drawn, queued)  # fmt: skip
+            return lambda: Image(*pending.result())
         image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m,
                           look, casters_drawn)  # fmt: skip
-        if native or (drawn_width, drawn_height) == (width, height):
-            return image
-        return image.resized(width, height)
+        if not native and (drawn_width, drawn_height) != (width, height):
+            image = image.resized(width, height)
+        return lambda: image
 
     @property
     def look_version(self) -> int:

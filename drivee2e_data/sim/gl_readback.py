@@ -1,0 +1,93 @@
+"""A drawn view's pixels read back from the GL renderer's framebuffer: at once, or queued into
+pixel buffers on a GPU, so that the caller draws its next views while the GPU draws and copies
+this one (`GLRenderer.queue`; the LiDAR's six views a sweep).
+
+A read at once waits for everything queued before it: on a GPU that several workers' contexts
+share, the worker sits idle through its view's drawing and through the other contexts' turns,
+once a view. Queued, a sweep's six LiDAR views cost one such wait. A queued read costs a copy
+more on the CPU (out of the pixel buffer), so the cameras' 1600x900 images are read at once:
+on an H100 host with all 32 cores busy, queuing them as well cost more than it saved
+(docs/benchmarks.md). Where Mesa's llvmpipe draws, drawing happens in the calling thread at the
+read and nothing would overlap: pixels are read at once there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Read:
+    """One colour attachment to read: its index in the framebuffer, components per pixel and
+    moderngl's dtype ("f1": uint8, "f4": float32)."""
+
+    attachment: int
+    components: int
+    dtype: str
+
+    def array(self, width: int, height: int) -> NDArray:
+        """An empty array the attachment's pixels fit: (H, W, C), or (H, W) for one component."""
+        shape = (height, width) if self.components == 1 else (height, width, self.components)
+        return np.empty(shape, np.uint8 if self.dtype == "f1" else np.float32)
+
+
+class PendingPixels:
+    """The pixels of one view's reads, in the order asked: already in arrays (read at once), or
+    on their way into pixel buffers, copied out by `result` (which waits for the GPU; the
+    renderer's context current)."""
+
+    def __init__(
+        self, arrays: list[NDArray], buffers: list | None = None, pool: list[list] | None = None
+    ) -> None:
+        self.arrays, self.buffers, self.pool = arrays, buffers, pool
+
+    def result(self) -> list[NDArray]:
+        if self.buffers is not None:
+            for buffer, array in zip(self.buffers, self.arrays, strict=True):
+                buffer.read_into(array)
+            self.pool.append(self.buffers)  # free for the next view of this size
+            self.buffers = None
+        return self.arrays
+
+
+class PixelReads:
+    """Reads from the renderer's framebuffers, with the pixel buffers of queued reads kept per
+    view size and reads for the renderer's next views (two sets for the cameras' one-ahead
+    pipeline, six for the LiDAR's views queued together)."""
+
+    def __init__(self, context, queued: bool) -> None:
+        self.context, self.queued = context, queued
+        self.free: dict[tuple, list[list]] = {}
+
+    def read(
+        self, framebuffer, reads: tuple[Read, ...], width: int, height: int, queued: bool = True
+    ) -> PendingPixels:
+        """The `reads` of `framebuffer` (current in the caller's context), `width` x `height`:
+        into pixel buffers where reads are `queued` here and the caller asks for it, else at
+        once."""
+        arrays = [read.array(width, height) for read in reads]
+        if not (self.queued and queued):
+            for read, array in zip(reads, arrays, strict=True):
+                framebuffer.read_into(array, components=read.components,
+                                      attachment=read.attachment, dtype=read.dtype)  # fmt: skip
+            return PendingPixels(arrays)
+        pool = self.free.setdefault((width, height, reads), [])
+        if pool:
+            buffers = pool.pop()
+        else:
+            buffers = [self.context.buffer(reserve=array.nbytes) for array in arrays]
+        for read, buffer in zip(reads, buffers, strict=True):
+            framebuffer.read_into(buffer, components=read.components,
+                                  attachment=read.attachment, dtype=read.dtype)  # fmt: skip
+        return PendingPixels(arrays, buffers, pool)
+
+    def release(self) -> None:
+        """Free the pixel buffers (the caller's context current)."""
+        for pool in self.free.values():
+            for buffers in pool:
+                for buffer in buffers:
+                    buffer.release()
+        self.free = {}
