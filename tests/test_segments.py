@@ -402,8 +402,8 @@ def test_a_split_unit_still_gives_the_one_worker_log(
     collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch
 ):
     """Two workers given 32 and 4 of a clip's 36 frames: the one done first takes the later
-    half of the other's frames, and the log written from the three segments is the one-worker
-    log."""
+    half of the other's frames (and half again of what is left, where it is done with those
+    first too), and the log written from the segments is the one-worker log."""
     scenario_id = store.scenario_ids(synthetic_root)[0]
     root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
     unequal = [(WorkUnit(scenario_id, 0, 32),), (WorkUnit(scenario_id, 32, LONG_CLIP_FRAMES),)]
@@ -412,12 +412,15 @@ def test_a_split_unit_still_gives_the_one_worker_log(
     summary = collect(root, options, workers=2)
     (result,) = summary.results
     assert result.status == "collected" and result.frames == LONG_CLIP_FRAMES
-    assert len(result.spans) == 3  # the two planned units and the piece split off the first
+    # the two planned units and one piece split off the first at least (how many more depends
+    # on the two workers' pace: a busy machine has split it twice)
+    assert len(result.spans) >= 3
     # each span names its piece's frames: together they tile the clip, none twice
     pieces = sorted((first, first + frames) for *_, first, frames in result.spans)
     assert pieces[0][0] == 0 and pieces[-1][1] == LONG_CLIP_FRAMES
     assert all(end == start for (_, end), (start, _) in itertools.pairwise(pieces))
-    assert 0 < pieces[1][0] < 32 and pieces[1][1] == 32  # the first unit's later frames
+    assert (32, LONG_CLIP_FRAMES) in pieces  # the second unit whole
+    assert 0 < pieces[1][0] < 32 and pieces[-2][1] == 32  # the first unit's later frames split
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
 

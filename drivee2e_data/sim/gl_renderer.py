@@ -693,20 +693,10 @@ class GLRenderer:
                                                           first=first)  # fmt: skip
 
     def draw(
-        self,
-        view: Sequence[float],
-        projection: Sequence[float],
-        width: int,
-        height: int,
-        segmentation: bool,
-        far_m: float,
-        look: str = "camera",
-        casters_drawn: bool = False,
+        self, *args, **kwargs
     ) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
-        """The view drawn and read back at once (`queue`, unqueued, then its `result`)."""
-        return self.queue(
-            view, projection, width, height, segmentation, far_m, look, casters_drawn, False
-        ).result()
+        """`queue`'s view, read back at once (not through pixel buffers)."""
+        return self.queue(*args, **kwargs, queued=False).result()
 
     def queue(
         self,
