@@ -61,6 +61,8 @@ class PixelReads:
     def __init__(self, context, queued: bool) -> None:
         self.context, self.queued = context, queued
         self.free: dict[tuple, list[list]] = {}
+        self.made: list = []  # every pixel buffer, released with the world even if a read was
+        # never taken (its caller failed between drawing and taking it)
 
     def read(
         self, framebuffer, reads: tuple[Read, ...], width: int, height: int, queued: bool = True
@@ -79,6 +81,7 @@ class PixelReads:
             buffers = pool.pop()
         else:
             buffers = [self.context.buffer(reserve=array.nbytes) for array in arrays]
+            self.made.extend(buffers)
         for read, buffer in zip(reads, buffers, strict=True):
             framebuffer.read_into(buffer, components=read.components,
                                   attachment=read.attachment, dtype=read.dtype)  # fmt: skip
@@ -86,8 +89,6 @@ class PixelReads:
 
     def release(self) -> None:
         """Free the pixel buffers (the caller's context current)."""
-        for pool in self.free.values():
-            for buffers in pool:
-                for buffer in buffers:
-                    buffer.release()
-        self.free = {}
+        for buffer in self.made:
+            buffer.release()
+        self.free, self.made = {}, []
