@@ -65,3 +65,16 @@ def test_kendall_tau_on_known_rankings() -> None:
     assert tau([1, 2, 3, 4], [10, 20, 40, 30]) == pytest.approx(4 / 6)
     # a tie in the first: tau-b, (5 - 0) / sqrt(5 * 6)
     assert tau([1, 1, 3, 4], [10, 20, 30, 40]) == pytest.approx(5 / 30**0.5)
+
+
+def test_gpu_load_is_each_gpus_mean_over_nvidia_smis_samples(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    gpus = _script("bench_gpus")
+    samples = tmp_path / "samples.csv"
+    samples.write_text("0, 80 %\n1, 60 %\n0, 90 %\n1, 70 %\n0, [N/A]\n")
+    assert gpus._gpu_load(samples) == "0: 85%, 1: 65%"
+    samples.write_text("")
+    assert gpus._gpu_load(samples) == "not sampled"
+    # a set to copy must be a data root: one clear error naming it
+    with pytest.raises(SystemExit, match="nowhere: no scenarios/ folder"):
+        gpus.copy_scenarios(tmp_path / "nowhere", tmp_path / "copy")
