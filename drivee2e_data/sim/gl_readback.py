@@ -54,15 +54,16 @@ class PendingPixels:
 
 
 class PixelReads:
-    """Reads from the renderer's framebuffers, with the pixel buffers of queued reads kept per
-    view size and reads for the renderer's next views (two sets for the cameras' one-ahead
-    pipeline, six for the LiDAR's views queued together)."""
+    """Reads from the renderer's framebuffers (`queued`: through pixel buffers where the caller
+    asks for it; on a GPU), the buffers kept per view size and reads for the renderer's next
+    views: six sets for a LiDAR sweep's views in flight at once, reused every sweep."""
 
     def __init__(self, context, queued: bool) -> None:
         self.context, self.queued = context, queued
         self.free: dict[tuple, list[list]] = {}
-        self.made: list = []  # every pixel buffer, released with the world even if a read was
-        # never taken (its caller failed between drawing and taking it)
+        # every pixel buffer made, released with the world even where a read was never taken
+        # (its caller failed between drawing and taking it)
+        self.made: list = []
 
     def read(
         self, framebuffer, reads: tuple[Read, ...], width: int, height: int, queued: bool = True
