@@ -55,6 +55,7 @@ from drivee2e_data.collect.job import (
 )
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.chunks import read_chunk
+from drivee2e_data.logs.writeback import Writeback
 from drivee2e_data.logs.writer import EncodedFrame, FrameEncoder, LogWriter, label_kinds
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
@@ -437,7 +438,13 @@ def _write_segment(piece: _Piece) -> int:
     try:
         with open(temporary, "wb") as stream:
             stream.write(MAGIC)
-            count = piece.capture(lambda frame: _write_frame(stream, encoder.encode(frame)))
+            writeback = Writeback(stream)
+
+            def write(frame) -> None:
+                _write_frame(stream, encoder.encode(frame))
+                writeback.written()
+
+            count = piece.capture(write)
             header["stop"] = unit.start + count
             data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
             stream.write(data + _TRAILER.pack(len(data), END))

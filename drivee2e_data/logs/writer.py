@@ -30,6 +30,7 @@ from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.logs import messages, schemas, topics
 from drivee2e_data.logs.chunks import ChannelTable, FinishedChunk, finish_chunk
 from drivee2e_data.logs.container import McapContainer
+from drivee2e_data.logs.writeback import Writeback
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion
 from drivee2e_data.sensors.rig import Rig
@@ -259,6 +260,7 @@ class LogWriter:
             self._container.add_metadata(topics.CAMERA_LABELS_METADATA, camera_labels)
         self.t_ns: list[int] = []  # of the frames written
         self.first_frame = first_frame
+        self._writeback = Writeback(self._file)
         self._owns_file = True  # `abort` deletes it (not a resumed head: `resume`)
 
     @classmethod
@@ -292,6 +294,7 @@ class LogWriter:
             writer._file, writer.encoder.channels, state["container"]
         )
         writer.t_ns = list(state["t_ns"])
+        writer._writeback = Writeback(writer._file)
         writer._owns_file = False
         return writer
 
@@ -310,6 +313,7 @@ class LogWriter:
         for chunk in encoded.chunks:
             self._container.add_chunk(chunk)
         self.t_ns.append(encoded.t_ns)
+        self._writeback.written()
 
     def finish(self) -> None:
         """The frame list, index and footer, flushed to disk, then the rename that makes the
