@@ -67,9 +67,21 @@ from drivee2e_data.sim.twin import mesh_folder
 
 BACKENDS = ("local", "ray")
 # threads writing clips' logs from their segments beside the pool: a log is a copy of its
-# segments' chunks (0.1-1 s a clip), so two keep up with any number of workers (four did not
-# shorten the run's end on an H100 host: docs/benchmarks.md, "ninth session")
+# segments' chunks (0.1-1 s a clip). Two for up to 16 workers (four did not shorten the run's
+# end on an H100 host with 16, docs/benchmarks.md, "ninth session"); one more per 8 workers
+# past that, up to 8: a large pool's last segments end together (16 clips' with 32 workers,
+# 64 with 128). On a 2-H100 host four gave 1.008x two, alternating (within the spread;
+# docs/benchmarks.md, "eighteenth session")
 MERGE_THREADS = 2
+MERGE_WORKERS_PER_THREAD = 8
+MAX_MERGE_THREADS = 8
+
+
+def merge_threads(workers: int) -> int:
+    """Threads writing logs from segments for a pool of `workers`."""
+    return min(MAX_MERGE_THREADS, max(MERGE_THREADS, workers // MERGE_WORKERS_PER_THREAD))
+
+
 # units a pool may split off running ones, per worker: the last frames of a run are handed out
 # in halves, so a few a worker balance it
 SPLITS_PER_WORKER = 4
@@ -570,7 +582,7 @@ def _run_pool(
     with (
         _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,
-        ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="merge") as writers,
+        ThreadPoolExecutor(merge_threads(workers), thread_name_prefix="merge") as writers,
     ):
         waiting = collections.deque(jobs)
         running: dict[Future, Job | str] = {}  # a job, or the clip whose log is being written

@@ -16,7 +16,7 @@ from drivee2e_data import store
 from drivee2e_data.cli import main
 from drivee2e_data.collect import balance, host, runner, segments
 from drivee2e_data.collect.job import CollectOptions, log_path
-from drivee2e_data.collect.runner import collect
+from drivee2e_data.collect.runner import collect, merge_threads
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
@@ -456,3 +456,9 @@ def test_a_two_node_ray_cluster_collects_one_clip_across_both(
     assert [share.split()[1] for share in shares.split(", ")] == ["18", "18"]
     alone = collected_root / "logs" / f"{scenario_id}.mcap"
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+
+
+def test_log_writing_threads_grow_with_the_pool_past_sixteen_workers():
+    # two up to 16 workers (the 2-core machine, a 16-core host), one more per 8 past that, at
+    # most 8
+    assert [merge_threads(n) for n in (1, 2, 16, 23, 24, 32, 64, 128)] == [2, 2, 2, 2, 3, 4, 8, 8]
