@@ -19,7 +19,7 @@ import numpy as np
 
 from drivee2e_data import store
 from drivee2e_data.scenario import TimeOfDay, Weather
-from drivee2e_data.sensors.contact_sheet import contact_sheet
+from drivee2e_data.sensors.contact_sheet import contact_sheet, outlined_text
 from drivee2e_data.sim.world import World
 from drivee2e_data.sun import start_time_for
 
@@ -49,10 +49,7 @@ def sheet_for(root: Path, scenario_id: str, frame: int, weather: Weather, time_o
     with World(intersection_map, scenario, renderer) as world:
         sheet = contact_sheet(world, frame)
     caption = f"{weather.value}, {time_of_day.value}"
-    cv2.putText(sheet, caption, (3 * 480 + 8, 48), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 4,
-                cv2.LINE_AA)  # fmt: skip
-    cv2.putText(sheet, caption, (3 * 480 + 8, 48), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
-                (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
+    outlined_text(sheet, caption, (3 * 480 + 8, 48))
     return cv2.resize(sheet, None, fx=SCALE, fy=SCALE, interpolation=cv2.INTER_AREA)
 
 

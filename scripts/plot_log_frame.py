@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.messages import LIDAR_DTYPE
 from drivee2e_data.logs.reader import LogReader
-from drivee2e_data.sensors.contact_sheet import SHEET_ORDER
+from drivee2e_data.sensors.contact_sheet import SHEET_ORDER, outlined_text
 
 TILE = (640, 360)
 LIDAR_HALF_M, LIDAR_PX = 50.0, 720
@@ -111,10 +111,7 @@ def draw_lidar(
 
 
 def label(image: NDArray[np.uint8], text: str) -> None:
-    for colour, thickness in (((0, 0, 0), 4), ((255, 255, 255), 1)):
-        cv2.putText(
-            image, text, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.65, colour, thickness, cv2.LINE_AA
-        )
+    outlined_text(image, text, (8, 24), 0.65)
 
 
 def main() -> None:

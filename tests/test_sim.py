@@ -203,6 +203,21 @@ def test_world_builds_on_real_map(tmp_path: Path):
         assert len(replay.twin.lamps) == 4
 
 
+def test_a_labels_outline_lies_around_its_text_along_the_whole_line():
+    from drivee2e_data.sensors.contact_sheet import outlined_text
+
+    caption = "synth_s0_c0013  frame 20  renderer gl"
+    image = np.full((40, 480, 3), 128, np.uint8)
+    outlined_text(image, caption, (8, 26))
+    bright = np.argwhere(image[..., 0] > 160)  # on a background of 128
+    dark = np.argwhere(image[..., 0] < 96)
+    # the dark pixels are the white glyphs' one-pixel border: their extent is the text's, a
+    # pixel wider each way (a thick dark pass under a thin white one ended 21 pixels past it)
+    assert len(bright) > 500 and len(dark) > 500
+    assert (dark.min(axis=0) - bright.min(axis=0)).tolist() == [-1, -1]
+    assert (dark.max(axis=0) - bright.max(axis=0)).tolist() == [1, 1]
+
+
 def test_view_cli_writes_a_contact_sheet(tmp_path: Path, capsys):
     import cv2
 

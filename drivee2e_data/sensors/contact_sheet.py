@@ -23,6 +23,8 @@ SHEET_ORDER = (
     "CAM_BACK_RIGHT",
 )
 TILE = (480, 270)  # width, height of each surround view
+# a label's outline: its glyphs drawn dark this many pixels around it (`outlined_text`)
+OUTLINE_OFFSETS = tuple((dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy)
 TOP_VIEW_HALF_WIDTH_M = 60.0
 
 
@@ -60,20 +62,28 @@ def contact_sheet(world: World, frame: int) -> NDArray[np.uint8]:
     labelled = []
     for name, image in tiles:
         image = np.ascontiguousarray(image)
-        _label(image, name, (8, 22))
+        outlined_text(image, name, (8, 22))
         labelled.append(image)
     rows = [np.concatenate(labelled[:3], axis=1), np.concatenate(labelled[3:], axis=1)]
     sheet = np.concatenate([np.concatenate(rows, axis=0), np.ascontiguousarray(top)], axis=1)
     caption = f"{world.scenario.scenario_id}  frame {frame}  renderer {world.renderer}"
-    _label(sheet, caption, (3 * width + 8, 22))
+    outlined_text(sheet, caption, (3 * width + 8, 22))
     return sheet
 
 
-def _label(image: NDArray[np.uint8], text: str, origin: tuple[int, int]) -> None:
-    """White text with a dark outline, readable on sky and on road."""
+def outlined_text(
+    image: NDArray[np.uint8], text: str, origin: tuple[int, int], scale: float = 0.6
+) -> None:
+    """White text with a dark outline, readable on sky and on road, drawn into `image` (RGB or
+    BGR) with its baseline's left end at `origin` (x, y pixels). The outline is the same glyphs
+    drawn dark one pixel around: OpenCV lays thick strokes out wider than thin ones (5.0: a
+    38-character caption 323 against 303 pixels), so a thick dark pass under a thin white one
+    drifts off it along the line."""
     import cv2
 
-    for colour, thickness in (((0, 0, 0), 4), ((255, 255, 255), 1)):
-        cv2.putText(
-            image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, 0.6, colour, thickness, cv2.LINE_AA
-        )
+    x, y = origin
+    for dx, dy in OUTLINE_OFFSETS:
+        cv2.putText(image, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1,
+                    cv2.LINE_AA)  # fmt: skip
+    cv2.putText(image, text, origin, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1,
+                cv2.LINE_AA)  # fmt: skip
