@@ -52,26 +52,38 @@ def box_corners_ego(box) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
     return np.array(corners)
 
 
+NEAR_M = 0.5  # edges are cut where they pass this close in front of the camera
+
+
+def visible_edge(
+    start: NDArray[np.float64], end: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The part of the edge from `start` to `end` (camera frame, z forward) at least `NEAR_M`
+    in front of the camera, or None where it all lies nearer or behind: a box beside the ego
+    has corners behind a side camera and its near edges still cross the image."""
+    if start[2] < NEAR_M and end[2] < NEAR_M:
+        return None
+    cut = (NEAR_M - start[2]) / (end[2] - start[2]) if min(start[2], end[2]) < NEAR_M else None
+    if cut is None:
+        return start, end
+    crossing = start + cut * (end - start)
+    return (crossing, end) if start[2] < NEAR_M else (start, crossing)
+
+
 def draw_camera(image: NDArray[np.uint8], calibration: dict, boxes: list) -> NDArray[np.uint8]:
     ego_to_camera = np.linalg.inv(np.array(calibration["sensor_to_ego"]))
     intrinsic = np.array(calibration["intrinsic"])
     for box in boxes:
         corners = box_corners_ego(box)
         camera = (ego_to_camera[:3, :3] @ corners.T).T + ego_to_camera[:3, 3]
-        if (camera[:, 2] < 0.5).any():
-            continue  # a box partly behind the camera: leave it to the other views
-        pixels = (intrinsic @ camera.T).T
-        pixels = pixels[:, :2] / pixels[:, 2:3]
         colour = (60, 220, 60) if box.cameras else (150, 150, 150)
         for a, b in EDGES:
-            cv2.line(
-                image,
-                tuple(pixels[a].astype(int)),
-                tuple(pixels[b].astype(int)),
-                colour,
-                2,
-                cv2.LINE_AA,
-            )
+            edge = visible_edge(camera[a], camera[b])
+            if edge is None:
+                continue
+            ends = [intrinsic @ point for point in edge]
+            first, second = (tuple(np.round(p[:2] / p[2]).astype(int)) for p in ends)
+            cv2.line(image, first, second, colour, 2, cv2.LINE_AA)
     return image
 
 

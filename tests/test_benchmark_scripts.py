@@ -10,6 +10,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPOSITORY = Path(__file__).resolve().parent.parent
@@ -78,3 +79,17 @@ def test_gpu_load_is_each_gpus_mean_over_nvidia_smis_samples(tmp_path: Path, mon
     # a set to copy must be a data root: one clear error naming it
     with pytest.raises(SystemExit, match="nowhere: no scenarios/ folder"):
         gpus.copy_scenarios(tmp_path / "nowhere", tmp_path / "copy")
+
+
+def test_a_box_edge_behind_the_camera_is_cut_at_the_near_plane() -> None:
+    # plot_log_frame draws a box beside the ego in the side cameras: the part of each edge in
+    # front of the camera
+    visible_edge = _script("plot_log_frame").visible_edge
+    ahead, behind = np.array([1.0, 2.0, 4.5]), np.array([1.0, 2.0, -3.5])
+    first, second = visible_edge(ahead, behind)
+    assert first.tolist() == ahead.tolist() and second.tolist() == [1.0, 2.0, 0.5]
+    first, second = visible_edge(behind, ahead)  # either way round
+    assert first.tolist() == [1.0, 2.0, 0.5] and second.tolist() == ahead.tolist()
+    assert visible_edge(behind, np.array([0.0, 0.0, 0.2])) is None
+    whole = visible_edge(ahead, np.array([3.0, 0.0, 9.0]))
+    assert [p.tolist() for p in whole] == [ahead.tolist(), [3.0, 0.0, 9.0]]
