@@ -230,7 +230,8 @@ def _covered_pixels(
     area = projected_area(frame, corners_world, ego_to_world)
     if area.is_empty or area.area < 1.0:
         return None
-    area = shapely.affinity.scale(area, *frame.drawn_per_camera_px, origin=(0, 0))
+    if frame.drawn_per_camera_px != (1.0, 1.0):  # drawn smaller (pybullet's EGL renderer)
+        area = shapely.affinity.scale(area, *frame.drawn_per_camera_px, origin=(0, 0))
     height, width = frame.depth_m.shape
     x0, y0 = (int(np.floor(v)) for v in area.bounds[:2])
     x1 = min(int(np.ceil(area.bounds[2])), width)
