@@ -44,8 +44,9 @@ class Writeback:
     """Starts the disk's writes of `stream`'s bytes as they grow (`written`, after each write or
     group of writes); `stream` is a file opened for writing, its position its end."""
 
-    def __init__(self, stream: BinaryIO, every_bytes: int = EVERY_BYTES) -> None:
-        self.stream, self.every_bytes = stream, every_bytes
+    def __init__(self, stream: BinaryIO, every_bytes: int | None = None) -> None:
+        self.stream = stream
+        self.every_bytes = EVERY_BYTES if every_bytes is None else every_bytes
         self.started = stream.tell()  # bytes before this are the disk's already, or were there
         self.enabled = _START_WRITES is not None
         self.calls = 0  # ranges handed to the disk (tests read it)
