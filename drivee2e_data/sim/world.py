@@ -32,7 +32,13 @@ from drivee2e_data.sim import reuse
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
-from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available, gl_renderer_name
+from drivee2e_data.sim.gl_renderer import (
+    GLRenderer,
+    PendingView,
+    SceneLights,
+    gl_available,
+    gl_renderer_name,
+)
 from drivee2e_data.sim.models import LOOK_VERSION, Animation, ModelMesh, agent_model
 from drivee2e_data.sim.twin import Twin, build_twin
 from drivee2e_data.sim.twin_plan import TwinPlan
@@ -463,9 +469,8 @@ class World:
             )
         drawn_width, drawn_height = self.drawn_size(width, height)
         if self.gl is not None:
-            self.gl.sync(self.state, self.animations, self.scene_lights)
-            pending = self.gl.queue(view, projection, drawn_width, drawn_height, segmentation,
-                                    far_m, look, casters_drawn, queued)  # fmt: skip
+            pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
+                                     far_m, look, casters_drawn, queued)  # fmt: skip
             return lambda: Image(*pending.result())
         image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m,
                           look, casters_drawn)  # fmt: skip
@@ -493,6 +498,11 @@ class World:
         scale = min(1.0, EGL_WINDOW_PX[0] / width, EGL_WINDOW_PX[1] / height)
         return round(width * scale), round(height * scale)
 
+    def _gl_queue(self, *args, **kwargs) -> PendingView:
+        """`GLRenderer.queue`'s view of the world as it stands: the bodies synced first."""
+        self.gl.sync(self.state, self.animations, self.scene_lights)
+        return self.gl.queue(*args, **kwargs)
+
     def draw(
         self,
         view: list[float],
@@ -512,9 +522,8 @@ class World:
         import cv2
 
         if self.gl is not None:
-            self.gl.sync(self.state, self.animations, self.scene_lights)
-            return Image(*self.gl.draw(view, projection, width, height, segmentation, far_m, look,
-                                       casters_drawn))  # fmt: skip
+            return Image(*self._gl_queue(view, projection, width, height, segmentation, far_m,
+                                         look, casters_drawn, queued=False).result())  # fmt: skip
         flags = 0 if segmentation else self.p.ER_NO_SEGMENTATION_MASK
         renderer = self.p.ER_TINY_RENDERER
         if self.renderer == "egl":
