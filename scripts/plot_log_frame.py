@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.messages import LIDAR_DTYPE
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.camera import NEAR_M  # edges are cut where the cameras' views begin
 from drivee2e_data.sensors.contact_sheet import SHEET_ORDER, outlined_text
 
 TILE = (640, 360)
@@ -50,9 +51,6 @@ def box_corners_ego(box) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
             x, y = sx * half[0], sy * half[1]
             corners.append([box.ego_x + c * x - s * y, box.ego_y + s * x + c * y, box.ego_z + dz])
     return np.array(corners)
-
-
-NEAR_M = 0.5  # edges are cut where they pass this close in front of the camera
 
 
 def visible_edge(
