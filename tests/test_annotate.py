@@ -8,7 +8,9 @@ from drivee2e_data.hdmap import Building
 from drivee2e_data.scenario import AgentClass
 from drivee2e_data.sensors.annotate import (
     box_corners_3d,
+    image_outline,
     points_in_box,
+    polygon_area,
     projected_area,
     visibility_level,
     visible_share,
@@ -65,6 +67,32 @@ def test_a_box_behind_a_building_is_not_visible(with_building):
             assert (frame.mask == world.bodies["hidden"]).sum() > 0.8 * area.area
     finally:
         world.close()
+
+
+def test_image_outline_is_the_hull_clipped_to_the_image():
+    """Known answers: a square half off the image's left side keeps its right half; a triangle
+    over a corner keeps the part inside; points in a line or wholly beside the image give
+    none. Then random point sets against shapely's hull and intersection."""
+    import shapely
+
+    square = np.array([[-10.0, 10.0], [10.0, 10.0], [10.0, 30.0], [-10.0, 30.0], [0.0, 20.0]])
+    outline = image_outline(square, 100, 50)
+    assert polygon_area(outline) == pytest.approx(200.0)
+    assert min(x for x, _ in outline) == 0.0 and max(x for x, _ in outline) == 10.0
+    corner = image_outline(np.array([[-20.0, -20.0], [40.0, -20.0], [-20.0, 40.0]]), 100, 50)
+    assert polygon_area(corner) == pytest.approx(0.5 * 20.0 * 20.0)  # x + y <= 20 in the image
+    assert image_outline(np.array([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]), 100, 50) is None
+    assert image_outline(np.array([[-9.0, 1.0], [-1.0, 1.0], [-5.0, 9.0]]), 100, 50) is None
+    rng = np.random.default_rng(7)
+    image = shapely.box(0, 0, 1600, 900)
+    for _ in range(500):
+        points = rng.uniform(-800, 2400, 2) + rng.normal(0, rng.choice([5, 300, 2000]), (8, 2))
+        expected = shapely.MultiPoint(points).convex_hull.intersection(image)
+        outline = image_outline(points, 1600, 900)
+        area = 0.0 if outline is None else polygon_area(outline)
+        assert area == pytest.approx(expected.area, rel=1e-9, abs=1e-9)
+        if outline is not None:
+            assert shapely.Polygon(outline).symmetric_difference(expected).area < 1e-6
 
 
 def test_visibility_levels_follow_nuscenes_bins():

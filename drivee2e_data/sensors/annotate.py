@@ -10,7 +10,6 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 import shapely
-import shapely.affinity
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import Track
@@ -112,10 +111,11 @@ def visible_shares(
     view: the boxes' pixels gathered and tested together (a frame asks this of six views and
     up to a hundred boxes, and one box at a time the work was numpy's per-call overhead)."""
     shares = np.zeros(len(bodies))
-    may_show = _over_image(frame, *_image_points(frame, corners_world, ego_to_world))
+    in_front, pixels = _image_points(frame, corners_world, ego_to_world)
+    may_show = _over_image(frame, in_front, pixels)
     covered = [
-        _covered_pixels(frame, corners, ego_to_world) if shows else None
-        for corners, shows in zip(corners_world, may_show, strict=True)
+        _covered_pixels(frame, pixels[k][in_front[k]]) if shows else None
+        for k, shows in enumerate(may_show)
     ]
     boxes = [k for k, pixels in enumerate(covered) if pixels is not None]
     if not boxes:
@@ -220,34 +220,107 @@ DEPTH_SAMPLES = 4000  # pixels per box at most for the share by depth
 
 
 def _covered_pixels(
-    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+    frame: CameraFrame, corners_px: NDArray[np.float64]
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
-    """Rows and columns (of the view as drawn) inside the box's projection; None if none. A
+    """Rows and columns (of the view as drawn) inside the projection of a box whose corners in
+    front of the camera project to `corners_px` `(K, 2)` (camera pixels); None if none. A
     large projection is sampled on a grid of every `stride`-th pixel each way, keeping at least
     4 * `DEPTH_SAMPLES` of its pixels (the share is then thinned to `DEPTH_SAMPLES` as any box's
     is): filling a near bus's half million pixels to keep four thousand of them was most of
     box visibility's time."""
-    area = projected_area(frame, corners_world, ego_to_world)
-    if area.is_empty or area.area < 1.0:
+    camera = frame.camera
+    vertices = image_outline(corners_px, camera.width, camera.height)
+    if vertices is None:
         return None
-    if frame.drawn_per_camera_px != (1.0, 1.0):  # drawn smaller (pybullet's EGL renderer)
-        area = shapely.affinity.scale(area, *frame.drawn_per_camera_px, origin=(0, 0))
+    scale_x, scale_y = frame.drawn_per_camera_px
+    if (scale_x, scale_y) != (1.0, 1.0):  # drawn smaller (pybullet's EGL renderer)
+        vertices = [(x * scale_x, y * scale_y) for x, y in vertices]
+    area = polygon_area(vertices)
+    if area < 1.0:
+        return None
     height, width = frame.depth_m.shape
-    x0, y0 = (int(np.floor(v)) for v in area.bounds[:2])
-    x1 = min(int(np.ceil(area.bounds[2])), width)
-    y1 = min(int(np.ceil(area.bounds[3])), height)
+    xs, ys = [x for x, _ in vertices], [y for _, y in vertices]
+    x0, y0 = int(np.floor(min(xs))), int(np.floor(min(ys)))
+    x1 = min(int(np.ceil(max(xs))), width)
+    y1 = min(int(np.ceil(max(ys))), height)
     if x1 <= x0 or y1 <= y0:
         return None
-    stride = max(1, int(np.sqrt(area.area / (4 * DEPTH_SAMPLES))))
+    stride = max(1, int(np.sqrt(area / (4 * DEPTH_SAMPLES))))
     inside = np.zeros((-(-(y1 - y0) // stride), -(-(x1 - x0) // stride)), np.uint8)
     # grid cell k stands for pixel k * stride, whose centre k * stride + 0.5 lands on the
     # cell's centre k + 0.5; 4 bits of sub-pixel precision
-    outline = ((np.asarray(area.exterior.coords) - (x0 + 0.5, y0 + 0.5)) / stride + 0.5) * 16
+    outline = ((np.array(vertices) - (x0 + 0.5, y0 + 0.5)) / stride + 0.5) * 16
     cv2.fillPoly(inside, [np.round(outline).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
     rows, columns = np.nonzero(inside)
     if len(rows) == 0:
         return None
     return rows * stride + y0, columns * stride + x0
+
+
+def image_outline(
+    points_px: NDArray[np.float64], width: float, height: float
+) -> list[tuple[float, float]] | None:
+    """The convex hull of `points_px` `(K, 2)` clipped to the image `[0, width] x [0, height]`,
+    as its M >= 3 vertices (x, y) in order around it; None when less than a polygon is left. The same polygon as
+    `projected_area` builds with shapely, at a tenth of the cost for the eight corners of a
+    box: a frame asks it of up to six hundred boxes."""
+    hull = _convex_hull([(float(x), float(y)) for x, y in points_px])
+    if len(hull) < 3:
+        return None
+    # Sutherland-Hodgman against the image's four sides, each as (axis, bound, keep low side)
+    for axis, bound, low_side in ((0, 0.0, False), (0, width, True), (1, 0.0, False),
+                                  (1, height, True)):  # fmt: skip
+        clipped = []
+        previous = hull[-1]
+        previous_in = (previous[axis] <= bound) if low_side else (previous[axis] >= bound)
+        for point in hull:
+            point_in = (point[axis] <= bound) if low_side else (point[axis] >= bound)
+            if point_in != previous_in:
+                t = (bound - previous[axis]) / (point[axis] - previous[axis])
+                crossing = [previous[0] + t * (point[0] - previous[0]),
+                            previous[1] + t * (point[1] - previous[1])]  # fmt: skip
+                crossing[axis] = bound
+                clipped.append((crossing[0], crossing[1]))
+            if point_in:
+                clipped.append(point)
+            previous, previous_in = point, point_in
+        hull = clipped
+        if len(hull) < 3:
+            return None
+    return hull
+
+
+def _convex_hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Andrew's monotone chain over a few points: the hull's vertices, no three collinear."""
+    points = sorted(set(points))
+    if len(points) < 3:
+        return points
+
+    def turn(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple[float, float]] = []
+    for point in points:
+        while len(lower) >= 2 and turn(lower[-2], lower[-1], point) <= 0:
+            lower.pop()
+        lower.append(point)
+    upper: list[tuple[float, float]] = []
+    for point in reversed(points):
+        while len(upper) >= 2 and turn(upper[-2], upper[-1], point) <= 0:
+            upper.pop()
+        upper.append(point)
+    return lower[:-1] + upper[:-1]
+
+
+def polygon_area(vertices: Sequence[tuple[float, float]]) -> float:
+    """Area of a simple polygon given by its vertices (x, y) in order (shoelace), whichever
+    way round."""
+    twice = 0.0
+    previous = vertices[-1]
+    for point in vertices:
+        twice += previous[0] * point[1] - previous[1] * point[0]
+        previous = point
+    return 0.5 * abs(twice)
 
 
 def _box_frame(
