@@ -124,6 +124,22 @@ def test_jpeg_round_trip_is_close():
     assert np.abs(decoded.astype(int) - rgb).mean() < 3
 
 
+def test_jpeg_of_the_rgb_channels_of_an_rgba_image():
+    """The GL renderer's views are RGB views of the RGBA it read: encoded from the four bytes
+    a pixel in one conversion, to the same bytes as the contiguous RGB; other views of an RGBA
+    array (its last three channels, a crop) are not taken for one."""
+    from drivee2e_data.sensors.camera import _rgba_under
+
+    rng = np.random.default_rng(3)
+    rgba = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
+    rgba[:, :80, :3] = (200, 40, 40)
+    rgb = rgba[..., :3]
+    assert _rgba_under(rgb) is rgba
+    assert _rgba_under(rgba[..., 1:]) is None and _rgba_under(rgba[:45, :, :3]) is None
+    assert encode_jpeg(rgb) == encode_jpeg(np.ascontiguousarray(rgb))
+    assert encode_jpeg(rgb) != encode_jpeg(np.ascontiguousarray(rgba[..., 1:]))
+
+
 def test_visible_share_from_depth_agrees_with_the_body_mask(tmp_path):
     """On a synthetic clip's six cameras at six frames, the depth-image share (no mask pass)
     gives the mask's visibility level for at least 95% of the boxes in view, within 0.02 at the

@@ -95,12 +95,32 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
-    """JPEG bytes of an RGB image."""
+    """JPEG bytes of an RGB image (contiguous, or the first three channels of an RGBA one, as
+    the GL renderer reads its views)."""
     import cv2
 
-    ok, encoded = cv2.imencode(
-        ".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]
-    )
+    rgba = _rgba_under(rgb)
+    if rgba is not None:
+        bgr = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
+    else:
+        bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    ok, encoded = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise ValueError("JPEG encoding failed")
     return encoded.tobytes()
+
+
+def _rgba_under(rgb: NDArray[np.uint8]) -> NDArray[np.uint8] | None:
+    """The (H, W, 4) contiguous array whose first three channels `rgb` (H, W, 3) is, if it is
+    one; else None."""
+    base = rgb.base
+    if (
+        isinstance(base, np.ndarray)
+        and base.dtype == np.uint8
+        and base.shape == (*rgb.shape[:2], 4)
+        and base.flags.c_contiguous
+        and rgb.strides == base.strides
+        and rgb.__array_interface__["data"][0] == base.__array_interface__["data"][0]
+    ):
+        return base
+    return None
