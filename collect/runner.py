@@ -683,6 +683,7 @@ def _run_pool(
         for scenario_id in tracker.ready:
             merge(scenario_id)
         hand_out()
+        exiting = False  # the workers told to exit
         while running:
             done, _ = wait(set(running), timeout=0.1, return_when=FIRST_COMPLETED)
             _drain(frames_done, tick)
@@ -710,12 +711,15 @@ def _run_pool(
                         world = maps_of.get(unit.scenario_id)
                 idle_maps.append(world)
             hand_out()
-            if not waiting and all(isinstance(job, str) for job in running.values()):
+            if not exiting and not waiting and all(isinstance(j, str) for j in running.values()):
                 # only logs left to write: the workers exit meanwhile (32 workers on an H100
-                # host took 1.3 s to, after the last logs had taken 1.4 s to write)
+                # host took 1.3 s to, after the last logs had taken 1.4 s to write). Once: the
+                # pool's thread holds its lock while it waits for the workers
                 pool.shutdown(wait=False)
+                exiting = True
         _drain(frames_done, tick)
-        pool.shutdown(wait=False)  # the workers exit while `then` runs
+        if not exiting:
+            pool.shutdown(wait=False)  # the workers exit while `then` runs
         if then is not None:
             then()
 
