@@ -62,7 +62,7 @@ from drivee2e_data.processes import (
 )
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
-from drivee2e_data.sim import egl_devices, reuse
+from drivee2e_data.sim import egl_devices, gl_renderer, reuse
 from drivee2e_data.sim.twin import mesh_folder
 
 BACKENDS = ("local", "ray")
@@ -422,6 +422,16 @@ _setups_done: multiprocessing.Queue | None = None  # (slot, pid, seconds) as eac
 _claims: Any = None  # the pool's `_Claims.shared`
 
 
+def context_at_start(options: CollectOptions) -> bool:
+    """Whether a pool worker makes its GL context as it starts: where its worlds will draw with
+    one (the GL renderer, asked for or chosen by "auto" where it can be made), unless the
+    cameras are finished with CUDA, which must start before any EGL context
+    (`camera_gpu.prepare`). Made at once, the contexts are made as the pool's server forks the
+    workers, one after another, rather than all in the workers' first set-ups together: 1.03x
+    frames a second with 32 workers on an H100 host (docs/benchmarks.md)."""
+    return options.renderer in ("auto", "gl") and options.post_process == "cpu"
+
+
 def _init_worker(
     frames_done: multiprocessing.Queue,
     units_done: multiprocessing.Queue,
@@ -430,6 +440,7 @@ def _init_worker(
     gpus: tuple[int, ...],
     claims: Any,
     plans: str,
+    make_context: bool = False,
 ) -> None:
     global _frames_done, _units_done, _setups_done, _claims
     _frames_done, _units_done, _setups_done, _claims = frames_done, units_done, setups_done, claims
@@ -437,6 +448,8 @@ def _init_worker(
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
+    if make_context:  # `context_at_start`
+        gl_renderer.gl_available()
     # one thread each for OpenCV too (llvmpipe's, OpenBLAS's, torch's: `one_thread_per_worker`;
     # llvmpipe with a thread per core and a worker per core: 1.43 -> 1.56 frames/s on 2 cores)
     import cv2
@@ -578,7 +591,8 @@ def _run_pool(
     units = sum(len(job) for job in jobs)
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
     plans = mesh_folder()  # the run's twin plans and shape files (`reuse`), removed with the pool
-    initargs = (frames_done, units_done, setups_done, started, gpus, claims.shared, str(plans))
+    initargs = (frames_done, units_done, setups_done, started, gpus, claims.shared, str(plans),
+                context_at_start(options))  # fmt: skip
     with (
         _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,

@@ -462,3 +462,30 @@ def test_log_writing_threads_grow_with_the_pool_past_sixteen_workers():
     # two up to 16 workers (the 2-core machine, a 16-core host), one more per 8 past that, at
     # most 8
     assert [merge_threads(n) for n in (1, 2, 16, 23, 24, 32, 64, 128)] == [2, 2, 2, 2, 3, 4, 8, 8]
+
+
+def _has_gl_context() -> bool:
+    from drivee2e_data.sim import gl_renderer
+
+    return gl_renderer._context.cache_info().currsize == 1
+
+
+def test_pool_workers_make_their_gl_context_as_they_start(tmp_path):
+    """Where worlds draw with the GL renderer a worker's context is made by its initialiser,
+    before any job; not where the cameras are finished with CUDA (which must start first), nor
+    for pybullet's renderers."""
+    from drivee2e_data.processes import worker_pool
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    assert runner.context_at_start(CollectOptions())  # renderer "auto", CPU post-processing
+    assert runner.context_at_start(CollectOptions(renderer="gl"))
+    assert not runner.context_at_start(CollectOptions(renderer="gl", post_process="cuda"))
+    assert not runner.context_at_start(CollectOptions(renderer="tiny"))
+    if not gl_available():
+        pytest.skip("no OpenGL context can be made here")
+    context = runner.worker_context()
+    for make_context in (True, False):
+        initargs = (context.Queue(), context.Queue(), context.Queue(), context.Value("i", 0), (),
+                    runner._Claims(1, context).shared, str(tmp_path), make_context)  # fmt: skip
+        with worker_pool(1, runner._init_worker, initargs, context) as pool:
+            assert pool.submit(_has_gl_context).result() is make_context
