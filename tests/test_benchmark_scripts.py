@@ -20,6 +20,7 @@ MANIFEST = REPOSITORY / "splits" / "synthetic-800.csv"
 def _script(name: str):  # type: ignore[no-untyped-def]
     spec = importlib.util.spec_from_file_location(name, REPOSITORY / "scripts" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
     return module
 
@@ -93,3 +94,32 @@ def test_a_box_edge_behind_the_camera_is_cut_at_the_near_plane() -> None:
     assert visible_edge(behind, np.array([0.0, 0.0, 0.2])) is None
     whole = visible_edge(ahead, np.array([3.0, 0.0, 9.0]))
     assert [p.tolist() for p in whole] == [ahead.tolist(), [3.0, 0.0, 9.0]]
+
+
+def test_the_end_of_a_run_is_split_into_its_logs_and_its_workers_exits() -> None:
+    profile = _script("profile_run_end")
+    stamps = profile.Stamps(started=100.0, returned=131.0, last_frame=129.0)
+    stamps.log("a", 127.0, 128.5)  # made final before the last frame: not part of the end
+    stamps.log("b", 129.2, 130.4)
+    stamps.shutdowns += [(False, 129.5, 129.5), (True, 130.6, 130.9)]
+    parts = profile.end_parts(stamps)
+    assert parts == pytest.approx({"logs": 1.4, "exits": 1.4, "end": 2.0})
+    quiet = profile.Stamps(started=0.0, returned=5.0, last_frame=4.5)
+    assert profile.end_parts(quiet) == pytest.approx({"logs": 0.0, "exits": 0.0, "end": 0.5})
+
+
+def test_processes_exit_measured_with_and_without_a_gl_context() -> None:
+    # its own process: the processes are forked, and a parent holding a GL context (as this
+    # one may, from other tests) would hand them one that cannot work
+    result = subprocess.run(
+        [sys.executable, str(REPOSITORY / "scripts" / "bench_context_exit.py"), "--processes", "2"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    if "no GL context" in result.stderr:
+        pytest.skip("no OpenGL context can be made here")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith("2 processes")
+    seconds = {line.split()[0]: float(line.split()[3]) for line in lines[1:]}
+    assert set(seconds) == {"held", "released", "none"}
+    assert all(0.0 < value < 30.0 for value in seconds.values())

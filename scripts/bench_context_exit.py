@@ -1,0 +1,103 @@
+"""How long processes holding a GL context take to exit together, as a collection pool's
+workers do at its end: with their context held, after releasing it, and without GL (the
+reference).
+
+    python scripts/bench_context_exit.py [--processes 32] [--gpus all] [--modes held released none]
+
+Forks `--processes` processes; each touches 400 MB of memory and, unless its mode is "none",
+makes the collector's GL context (`gl_renderer.gl_available`, on EGL device k mod the GPUs,
+as `--gpus` deals them) with two 1600x900 framebuffers (RGBA, float depth) and 100 MB of
+buffers, draws and reads once, then waits. All are then told to exit at once (`os._exit`,
+"released": after releasing the context) and the time until the last is gone is printed, with
+its ratio to "none". NVIDIA's driver tears contexts down one at a time, so the time grows with
+the processes (docs/benchmarks.md, nineteenth session); llvmpipe's are freed with the process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import time
+
+MODES = ("held", "released", "none")
+TOUCHED_BYTES = 400_000_000  # a worker's memory, roughly
+FRAMEBUFFER_PX = (1600, 900)
+
+
+def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go) -> None:
+    import numpy as np
+
+    from drivee2e_data.sim import egl_devices
+
+    egl_devices.use_device(egl_devices.device_for_worker(k, gpus))
+    memory = np.ones(TOUCHED_BYTES // 8)
+    context = None
+    if mode != "none":
+        from drivee2e_data.sim import gl_renderer
+
+        if not gl_renderer.gl_available():
+            raise SystemExit("no GL context can be made here")
+        context = gl_renderer._context()
+        framebuffers = []
+        for _ in range(2):
+            colour = [context.renderbuffer(FRAMEBUFFER_PX, 4),
+                      context.renderbuffer(FRAMEBUFFER_PX, 1, dtype="f4")]  # fmt: skip
+            depth = context.depth_renderbuffer(FRAMEBUFFER_PX)
+            framebuffers.append(
+                context.framebuffer(color_attachments=colour, depth_attachment=depth)
+            )
+        buffers = [context.buffer(reserve=20_000_000) for _ in range(5)]
+        framebuffers[0].use()
+        context.clear(0.1, 0.2, 0.3)
+        framebuffers[0].read()
+        del buffers
+    ready.release()
+    go.wait()
+    if mode == "released" and context is not None:
+        context.release()
+    del memory
+    os._exit(0)
+
+
+def exit_seconds(processes: int, mode: str, gpus: tuple[int, ...]) -> float:
+    """Seconds from telling `processes` processes of `mode` to exit to the last one gone. They
+    are forked: call it from a process that has made no GL context."""
+    context = multiprocessing.get_context("fork")
+    ready, go = context.Semaphore(0), context.Event()
+    started = [context.Process(target=_process, args=(k, mode, gpus, ready, go))
+               for k in range(processes)]  # fmt: skip
+    for process in started:
+        process.start()
+    for _ in started:
+        while not ready.acquire(timeout=1.0):
+            if any(p.exitcode not in (None, 0) for p in started):
+                raise SystemExit(f"a process of mode {mode!r} failed before it was ready")
+    time.sleep(0.5)  # settled: nothing else starting
+    began = time.perf_counter()
+    go.set()
+    for process in started:
+        process.join()
+    return time.perf_counter() - began
+
+
+def main() -> None:
+    from drivee2e_data.sim.egl_devices import gpu_devices, parse_gpus
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--processes", type=int, default=32)
+    parser.add_argument("--gpus", default="all", help="'all' or EGL device indices like 0,1")
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    args = parser.parse_args()
+    gpus = parse_gpus(args.gpus)
+    gpus = gpu_devices() if gpus is None else gpus
+    print(f"{args.processes} processes, GPUs {gpus or 'none (llvmpipe)'}")
+    seconds = {mode: exit_seconds(args.processes, mode, gpus) for mode in args.modes}
+    reference = seconds.get("none")
+    for mode, value in seconds.items():
+        ratio = f" ({value / reference:.1f}x without GL)" if reference and mode != "none" else ""
+        print(f"  {mode:<9} all exited {value:.3f} s after told to{ratio}")
+
+
+if __name__ == "__main__":
+    main()
