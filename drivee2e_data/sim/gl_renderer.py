@@ -274,7 +274,6 @@ class PendingView:
         self.colour, self.segmentation = colour, segmentation
 
     def result(self) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
-
         with current(self.context):
             arrays = list(self.pixels.result())
         if self.colour:
