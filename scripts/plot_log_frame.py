@@ -61,10 +61,9 @@ def visible_edge(
     has corners behind a side camera and its near edges still cross the image."""
     if start[2] < NEAR_M and end[2] < NEAR_M:
         return None
-    cut = (NEAR_M - start[2]) / (end[2] - start[2]) if min(start[2], end[2]) < NEAR_M else None
-    if cut is None:
+    if start[2] >= NEAR_M and end[2] >= NEAR_M:
         return start, end
-    crossing = start + cut * (end - start)
+    crossing = start + (NEAR_M - start[2]) / (end[2] - start[2]) * (end - start)
     return (crossing, end) if start[2] < NEAR_M else (start, crossing)
 
 
