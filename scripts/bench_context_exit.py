@@ -1,6 +1,6 @@
-"""How long processes holding a GL context take to exit together, as a collection pool's
-workers do at its end: with their context held, after releasing it, and without GL (the
-reference).
+"""How long processes take to make a GL context together, as a collection pool's workers do as
+they start, and to exit together holding it, as they do at its end: with their context held,
+after releasing it, and without GL (the reference).
 
     python scripts/bench_context_exit.py [--processes 32] [--gpus all] [--modes held released none]
 
@@ -11,6 +11,9 @@ buffers, draws and reads once, then waits. All are then told to exit at once (`o
 "released": after releasing the context) and the time until the last is gone is printed, with
 its ratio to "none". NVIDIA's driver tears contexts down one at a time, so the time grows with
 the processes (docs/benchmarks.md, nineteenth session); llvmpipe's are freed with the process.
+For the modes with GL it also prints how long a process took to make its context and be ready
+(median and longest) and how long from the first process beginning to the last being ready:
+where the driver makes contexts one at a time, the span is about the processes times one.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ TOUCHED_BYTES = 400_000_000  # a worker's memory, roughly
 FRAMEBUFFER_PX = (1600, 900)
 
 
-def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go) -> None:
+def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made) -> None:
     import numpy as np
 
     from drivee2e_data.sim import egl_devices
@@ -33,6 +36,7 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go) -> None:
     egl_devices.use_device(egl_devices.device_for_worker(k, gpus))
     memory = np.ones(TOUCHED_BYTES // 8)
     context = None
+    began = time.perf_counter()  # CLOCK_MONOTONIC: one clock for all processes
     if mode != "none":
         from drivee2e_data.sim import gl_renderer
 
@@ -52,6 +56,7 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go) -> None:
         context.clear(0.1, 0.2, 0.3)
         framebuffers[0].read()
         del buffers
+    made.put((began, time.perf_counter()))
     ready.release()
     go.wait()
     if mode == "released" and context is not None:
@@ -60,12 +65,25 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go) -> None:
     os._exit(0)
 
 
-def exit_seconds(processes: int, mode: str, gpus: tuple[int, ...]) -> float:
-    """Seconds from telling `processes` processes of `mode` to exit to the last one gone. They
-    are forked: call it from a process that has made no GL context."""
+def creation(spans: list[tuple[float, float]]) -> dict[str, float]:
+    """Of each process's (began, ready) in seconds: the median and longest time a process took,
+    and the span from the first beginning to the last ready."""
+    each = sorted(ready - began for began, ready in spans)
+    middle = len(each) // 2
+    median = each[middle] if len(each) % 2 else (each[middle - 1] + each[middle]) / 2
+    span = max(ready for _, ready in spans) - min(began for began, _ in spans)
+    return {"median": median, "longest": each[-1], "span": span}
+
+
+def exit_seconds(
+    processes: int, mode: str, gpus: tuple[int, ...]
+) -> tuple[float, list[tuple[float, float]]]:
+    """Seconds from telling `processes` processes of `mode` to exit to the last one gone, and
+    each process's (began, ready) making its context. They are forked: call it from a process
+    that has made no GL context."""
     context = multiprocessing.get_context("fork")
-    ready, go = context.Semaphore(0), context.Event()
-    started = [context.Process(target=_process, args=(k, mode, gpus, ready, go))
+    ready, go, made = context.Semaphore(0), context.Event(), context.Queue()
+    started = [context.Process(target=_process, args=(k, mode, gpus, ready, go, made))
                for k in range(processes)]  # fmt: skip
     for process in started:
         process.start()
@@ -73,12 +91,13 @@ def exit_seconds(processes: int, mode: str, gpus: tuple[int, ...]) -> float:
         while not ready.acquire(timeout=1.0):
             if any(p.exitcode not in (None, 0) for p in started):
                 raise SystemExit(f"a process of mode {mode!r} failed before it was ready")
+    spans = [made.get() for _ in started]
     time.sleep(0.5)  # settled: nothing else starting
     began = time.perf_counter()
     go.set()
     for process in started:
         process.join()
-    return time.perf_counter() - began
+    return time.perf_counter() - began, spans
 
 
 def main() -> None:
@@ -92,11 +111,17 @@ def main() -> None:
     gpus = parse_gpus(args.gpus)
     gpus = gpu_devices() if gpus is None else gpus
     print(f"{args.processes} processes, GPUs {gpus or 'none (llvmpipe)'}")
-    seconds = {mode: exit_seconds(args.processes, mode, gpus) for mode in args.modes}
-    reference = seconds.get("none")
-    for mode, value in seconds.items():
+    measured = {mode: exit_seconds(args.processes, mode, gpus) for mode in args.modes}
+    reference = measured["none"][0] if "none" in measured else None
+    for mode, (value, _) in measured.items():
         ratio = f" ({value / reference:.1f}x without GL)" if reference and mode != "none" else ""
         print(f"  {mode:<9} all exited {value:.3f} s after told to{ratio}")
+    for mode, (_, spans) in measured.items():
+        if mode != "none":
+            made = creation(spans)
+            print(f"  {mode:<9} made a context in {made['median']:.3f} s (median), "
+                  f"{made['longest']:.3f} longest; all ready {made['span']:.3f} s after the "
+                  f"first began")  # fmt: skip
 
 
 if __name__ == "__main__":

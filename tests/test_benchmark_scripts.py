@@ -120,6 +120,41 @@ def test_processes_exit_measured_with_and_without_a_gl_context() -> None:
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
     assert lines[0].startswith("2 processes")
-    seconds = {line.split()[0]: float(line.split()[3]) for line in lines[1:]}
+    exits = [line.split() for line in lines[1:] if "exited" in line]
+    seconds = {words[0]: float(words[3]) for words in exits}
     assert set(seconds) == {"held", "released", "none"}
     assert all(0.0 < value < 30.0 for value in seconds.values())
+    made = [line.split() for line in lines[1:] if "made a context" in line]
+    assert [words[0] for words in made] == ["held", "released"]  # none makes no context
+    for words in made:
+        median, longest, span = float(words[5]), float(words[8]), float(words[12])
+        assert 0.0 < median <= longest <= span < 30.0
+
+
+def test_context_creation_is_summarised_by_median_longest_and_span() -> None:
+    bench = _script("bench_context_exit")
+    made = bench.creation([(10.0, 10.5), (10.1, 11.1), (10.2, 10.4)])
+    assert made == pytest.approx({"median": 0.5, "longest": 1.0, "span": 1.1})
+    assert bench.creation([(0.0, 2.0), (1.0, 2.0)])["median"] == pytest.approx(1.5)
+
+
+def test_host_cpu_bench_reports_each_count_against_one_process() -> None:
+    result = subprocess.run(
+        [sys.executable, str(REPOSITORY / "scripts" / "bench_host_cpu.py"),
+         "--processes", "2", "--seconds", "0.3"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    rows = [line.split() for line in result.stdout.splitlines()[1:]]
+    assert [int(words[0]) for words in rows] == [1, 2]  # one process added as the reference
+    assert rows[0][-3] == "1.00x"
+    each, total = float(rows[1][2]), float(rows[1][4])
+    assert each > 0 and total == pytest.approx(2 * each, rel=0.01)
+
+
+def test_host_cpu_bench_image_is_camera_sized_and_the_same_each_time() -> None:
+    bench = _script("bench_host_cpu")
+    image = bench.camera_like_image()
+    assert image.shape == (900, 1600, 3) and image.dtype == np.uint8
+    assert np.array_equal(image, bench.camera_like_image())
+    assert not np.array_equal(image, bench.camera_like_image(seed=1))
