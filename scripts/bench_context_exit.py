@@ -109,7 +109,10 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
     args = parser.parse_args()
     gpus = parse_gpus(args.gpus)
-    gpus = gpu_devices() if gpus is None else gpus
+    if gpus is None:  # asked of EGL in a fresh process: a forked child of one that asked cannot
+        # make a context on NVIDIA's driver
+        with multiprocessing.get_context("spawn").Pool(1) as pool:
+            gpus = pool.apply(gpu_devices)
     print(f"{args.processes} processes, GPUs {gpus or 'none (llvmpipe)'}")
     measured = {mode: exit_seconds(args.processes, mode, gpus) for mode in args.modes}
     reference = measured["none"][0] if "none" in measured else None
