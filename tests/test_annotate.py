@@ -128,14 +128,14 @@ def test_jpeg_of_the_rgb_channels_of_an_rgba_image():
     """The GL renderer's views are RGB views of the RGBA it read: encoded from the four bytes
     a pixel in one conversion, to the same bytes as the contiguous RGB; other views of an RGBA
     array (its last three channels, a crop) are not taken for one."""
-    from drivee2e_data.sensors.camera import _rgba_under
+    from drivee2e_data.sim.gl_readback import rgba_under
 
     rng = np.random.default_rng(3)
     rgba = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
     rgba[:, :80, :3] = (200, 40, 40)
     rgb = rgba[..., :3]
-    assert _rgba_under(rgb) is rgba
-    assert _rgba_under(rgba[..., 1:]) is None and _rgba_under(rgba[:45, :, :3]) is None
+    assert rgba_under(rgb) is rgba
+    assert rgba_under(rgba[..., 1:]) is None and rgba_under(rgba[:45, :, :3]) is None
     assert encode_jpeg(rgb) == encode_jpeg(np.ascontiguousarray(rgb))
     assert encode_jpeg(rgb) != encode_jpeg(np.ascontiguousarray(rgba[..., 1:]))
 

@@ -18,6 +18,7 @@ from drivee2e_data.sensors import bev
 from drivee2e_data.sensors.camera import render, with_conditions
 from drivee2e_data.sensors.ego_state import se3, to_ego_frame
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
+from drivee2e_data.sim.gl_readback import contiguous_rgb
 from drivee2e_data.sim.vehicle import Bicycle, VehicleState
 from drivee2e_data.sim.world import World
 
@@ -72,7 +73,7 @@ def write_video(
             world.show(placements, signals, frame)
             ego_to_world = se3(state.x_m, state.y_m, float(ground_z_m[frame]), state.yaw_rad)
             front = with_conditions(world, render(world, camera, ego_to_world, mask=False), frame)
-            top = np.ascontiguousarray(bev.top_view(world, ego_to_world, TOP_PX, TOP_HALF_WIDTH_M))
+            top = contiguous_rgb(bev.top_view(world, ego_to_world, TOP_PX, TOP_HALF_WIDTH_M))
             canvas = np.concatenate([cv2.resize(front, FRONT_SIZE), top], axis=1)
             image = np.ascontiguousarray(canvas[..., ::-1])  # OpenCV writes BGR
             _draw_top(image, state, np.array(driven), logged_xy_m, record.planned_xy_m, bicycle)

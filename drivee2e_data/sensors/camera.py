@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
 from drivee2e_data.sim.conditions import post_process
+from drivee2e_data.sim.gl_readback import rgba_under
 from drivee2e_data.sim.world import World
 
 
@@ -99,7 +100,7 @@ def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
     the GL renderer reads its views)."""
     import cv2
 
-    rgba = _rgba_under(rgb)
+    rgba = rgba_under(rgb)
     if rgba is not None:
         bgr = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
     else:
@@ -108,19 +109,3 @@ def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
     if not ok:
         raise ValueError("JPEG encoding failed")
     return encoded.tobytes()
-
-
-def _rgba_under(rgb: NDArray[np.uint8]) -> NDArray[np.uint8] | None:
-    """The (H, W, 4) contiguous array whose first three channels `rgb` (H, W, 3) is, if it is
-    one; else None."""
-    base = rgb.base
-    if (
-        isinstance(base, np.ndarray)
-        and base.dtype == np.uint8
-        and base.shape == (*rgb.shape[:2], 4)
-        and base.flags.c_contiguous
-        and rgb.strides == base.strides
-        and rgb.__array_interface__["data"][0] == base.__array_interface__["data"][0]
-    ):
-        return base
-    return None

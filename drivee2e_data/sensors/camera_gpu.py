@@ -11,11 +11,10 @@ from __future__ import annotations
 import functools
 import sys
 
-import numpy as np
-
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, has_headlights, noise_seed
 from drivee2e_data.sim import conditions_torch
+from drivee2e_data.sim.gl_readback import contiguous_rgb
 from drivee2e_data.sim.world import World
 
 POST_PROCESS_DEVICES = ("cpu", "cuda")
@@ -65,7 +64,7 @@ def finish(world: World, views: list[CameraFrame], frame: int, device: str) -> l
     scenario = world.scenario
     images = []
     for view in views:
-        rgb = torch.from_numpy(np.ascontiguousarray(view.rgb)).to(device, non_blocking=True)
+        rgb = torch.from_numpy(contiguous_rgb(view.rgb)).to(device, non_blocking=True)
         depth = torch.from_numpy(view.depth_m).to(device, non_blocking=True)
         image = conditions_torch.post_process(
             rgb, depth, scenario.conditions, world.lighting,

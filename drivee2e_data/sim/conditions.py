@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import GeoOrigin
 from drivee2e_data.scenario import Conditions, Weather
+from drivee2e_data.sim.gl_readback import contiguous_rgb
 from drivee2e_data.sun import sun_position
 
 # metres of visibility (distance at which contrast falls to 5%); None: clear air
@@ -86,7 +87,7 @@ def post_process(
     if visibility is None and not wet and not light.night:
         return rgb  # clear air by day: the render as is
     rng = np.random.default_rng(seed)
-    image = np.ascontiguousarray(rgb)
+    image = contiguous_rgb(rgb)
     if wet:
         image = image.copy()
         lower = image[image.shape[0] // 2 :]
@@ -235,11 +236,11 @@ def _sensor_effects(
     rng = np.random.default_rng(seed)
     image = rgb
     if light.night:
-        image = np.ascontiguousarray(rgb)
+        image = contiguous_rgb(rgb)
         noise = sensor_noise(image.shape, rng)
         image = cv2.add(image, noise, dtype=cv2.CV_8U)  # saturating, in whole levels
     if conditions.weather == Weather.RAIN:
-        image = _rain(np.ascontiguousarray(image), rng)
+        image = _rain(contiguous_rgb(image), rng)
     return image
 
 
