@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import atexit
 import collections
+import contextlib
 import fcntl
 import functools
 import io
@@ -422,6 +423,20 @@ _setups_done: multiprocessing.Queue | None = None  # (slot, pid, seconds) as eac
 _claims: Any = None  # the pool's `_Claims.shared`
 
 
+# GL contexts made at once per GPU as a pool starts. NVIDIA's driver makes them through a step
+# that takes one at a time: 32 workers making theirs together all waited about 1.7 s and were
+# ready together (an H100 host's two GPUs; one alone takes 0.2 s), where a few at a time have
+# the first ready in a fraction of that to start on their jobs (docs/benchmarks.md, twentieth
+# session; `scripts/bench_context_exit.py --at-once K`)
+CONTEXTS_AT_ONCE_PER_GPU = 4
+
+
+def contexts_at_once(gpus: tuple[int, ...]) -> int:
+    """How many pool workers make their GL context at the same time (`CONTEXTS_AT_ONCE_PER_GPU`
+    for each of `gpus`, the default device counting as one)."""
+    return CONTEXTS_AT_ONCE_PER_GPU * max(1, len(gpus))
+
+
 def context_at_start(options: CollectOptions) -> bool:
     """Whether a pool worker makes its GL context as it starts: where its worlds will draw with
     one (the GL renderer, asked for or chosen by "auto" where it can be made), unless the
@@ -441,6 +456,7 @@ def _init_worker(
     claims: Any,
     plans: str,
     make_context: bool = False,
+    context_slots: Any = None,
 ) -> None:
     global _frames_done, _units_done, _setups_done, _claims
     _frames_done, _units_done, _setups_done, _claims = frames_done, units_done, setups_done, claims
@@ -448,8 +464,9 @@ def _init_worker(
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
-    if make_context:  # `context_at_start`
-        gl_renderer.gl_available()
+    if make_context:  # `context_at_start`, a few workers at a time (`contexts_at_once`)
+        with context_slots if context_slots is not None else contextlib.nullcontext():
+            gl_renderer.gl_available()
     # one thread each for OpenCV too (llvmpipe's, OpenBLAS's, torch's: `one_thread_per_worker`;
     # llvmpipe with a thread per core and a worker per core: 1.43 -> 1.56 frames/s on 2 cores)
     import cv2
@@ -592,7 +609,7 @@ def _run_pool(
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
     plans = mesh_folder()  # the run's twin plans and shape files (`reuse`), removed with the pool
     initargs = (frames_done, units_done, setups_done, started, gpus, claims.shared, str(plans),
-                context_at_start(options))  # fmt: skip
+                context_at_start(options), context.Semaphore(contexts_at_once(gpus)))  # fmt: skip
     with (
         _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,

@@ -3,6 +3,7 @@ they start, and to exit together holding it, as they do at its end: with their c
 after releasing it, and without GL (the reference).
 
     python scripts/bench_context_exit.py [--processes 32] [--gpus all] [--modes held released none]
+        [--at-once K]
 
 Forks `--processes` processes; each touches 400 MB of memory and, unless its mode is "none",
 makes the collector's GL context (`gl_renderer.gl_available`, on EGL device k mod the GPUs,
@@ -12,8 +13,9 @@ buffers, draws and reads once, then waits. All are then told to exit at once (`o
 its ratio to "none". NVIDIA's driver tears contexts down one at a time, so the time grows with
 the processes (docs/benchmarks.md, nineteenth session); llvmpipe's are freed with the process.
 For the modes with GL it also prints how long a process took to make its context and be ready
-(median and longest) and how long from the first process beginning to the last being ready:
-where the driver makes contexts one at a time, the span is about the processes times one.
+(median and longest), when the median process was ready and when the last was, counted from the
+first beginning. `--at-once K` lets only K processes make theirs at the same time, as the
+collector's pool does (`runner.contexts_at_once`); by default all do at once.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ TOUCHED_BYTES = 400_000_000  # a worker's memory, roughly
 FRAMEBUFFER_PX = (1600, 900)
 
 
-def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made) -> None:
+def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -> None:
     import numpy as np
 
     from drivee2e_data.sim import egl_devices
@@ -40,8 +42,9 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made) -> None:
     if mode != "none":
         from drivee2e_data.sim import gl_renderer
 
-        if not gl_renderer.gl_available():
-            raise SystemExit("no GL context can be made here")
+        with slots:
+            if not gl_renderer.gl_available():
+                raise SystemExit("no GL context can be made here")
         context = gl_renderer._context()
         framebuffers = []
         for _ in range(2):
@@ -65,25 +68,32 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made) -> None:
     os._exit(0)
 
 
+def _median(values: list[float]) -> float:
+    ordered = sorted(values)
+    middle = len(ordered) // 2
+    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+
+
 def creation(spans: list[tuple[float, float]]) -> dict[str, float]:
     """Of each process's (began, ready) in seconds: the median and longest time a process took,
-    and the span from the first beginning to the last ready."""
-    each = sorted(ready - began for began, ready in spans)
-    middle = len(each) // 2
-    median = each[middle] if len(each) % 2 else (each[middle - 1] + each[middle]) / 2
-    span = max(ready for _, ready in spans) - min(began for began, _ in spans)
-    return {"median": median, "longest": each[-1], "span": span}
+    and, from the first beginning, when the median process was ready and the last."""
+    each = [ready - began for began, ready in spans]
+    first = min(began for began, _ in spans)
+    readies = [ready - first for _, ready in spans]
+    return {"median": _median(each), "longest": max(each), "ready": _median(readies),
+            "span": max(readies)}  # fmt: skip
 
 
 def exit_seconds(
-    processes: int, mode: str, gpus: tuple[int, ...]
+    processes: int, mode: str, gpus: tuple[int, ...], at_once: int = 0
 ) -> tuple[float, list[tuple[float, float]]]:
     """Seconds from telling `processes` processes of `mode` to exit to the last one gone, and
-    each process's (began, ready) making its context. They are forked: call it from a process
-    that has made no GL context."""
+    each process's (began, ready) making its context, `at_once` at a time (0: all). They are
+    forked: call it from a process that has made no GL context."""
     context = multiprocessing.get_context("fork")
     ready, go, made = context.Semaphore(0), context.Event(), context.Queue()
-    started = [context.Process(target=_process, args=(k, mode, gpus, ready, go, made))
+    slots = context.Semaphore(at_once or processes)
+    started = [context.Process(target=_process, args=(k, mode, gpus, ready, go, made, slots))
                for k in range(processes)]  # fmt: skip
     for process in started:
         process.start()
@@ -107,14 +117,16 @@ def main() -> None:
     parser.add_argument("--processes", type=int, default=32)
     parser.add_argument("--gpus", default="all", help="'all' or EGL device indices like 0,1")
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    parser.add_argument("--at-once", type=int, default=0, help="contexts made at once (0: all)")
     args = parser.parse_args()
     gpus = parse_gpus(args.gpus)
     if gpus is None:  # asked of EGL in a fresh process: a forked child of one that asked cannot
         # make a context on NVIDIA's driver
         with multiprocessing.get_context("spawn").Pool(1) as pool:
             gpus = pool.apply(gpu_devices)
-    print(f"{args.processes} processes, GPUs {gpus or 'none (llvmpipe)'}")
-    measured = {mode: exit_seconds(args.processes, mode, gpus) for mode in args.modes}
+    at_once = f"{args.at_once} at once" if args.at_once else "all at once"
+    print(f"{args.processes} processes, GPUs {gpus or 'none (llvmpipe)'}, contexts {at_once}")
+    measured = {mode: exit_seconds(args.processes, mode, gpus, args.at_once) for mode in args.modes}
     reference = measured["none"][0] if "none" in measured else None
     for mode, (value, _) in measured.items():
         ratio = f" ({value / reference:.1f}x without GL)" if reference and mode != "none" else ""
@@ -123,8 +135,8 @@ def main() -> None:
         if mode != "none":
             made = creation(spans)
             print(f"  {mode:<9} made a context in {made['median']:.3f} s (median), "
-                  f"{made['longest']:.3f} longest; all ready {made['span']:.3f} s after the "
-                  f"first began")  # fmt: skip
+                  f"{made['longest']:.3f} longest; ready {made['ready']:.3f} s (median) and "
+                  f"{made['span']:.3f} s (last) after the first began")  # fmt: skip
 
 
 if __name__ == "__main__":

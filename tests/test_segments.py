@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import shutil
+import time
 from pathlib import Path
 
 import pytest
@@ -489,3 +490,26 @@ def test_pool_workers_make_their_gl_context_as_they_start(tmp_path):
                     runner._Claims(1, context).shared, str(tmp_path), make_context)  # fmt: skip
         with worker_pool(1, runner._init_worker, initargs, context) as pool:
             assert pool.submit(_has_gl_context).result() is make_context
+
+
+def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
+    """A worker makes its context only with one of the pool's slots (`contexts_at_once`: a few
+    per GPU): with none free it waits, and takes no job, until one is."""
+    from drivee2e_data.processes import worker_pool
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    assert runner.contexts_at_once(()) == runner.CONTEXTS_AT_ONCE_PER_GPU
+    assert runner.contexts_at_once((0, 1)) == 2 * runner.CONTEXTS_AT_ONCE_PER_GPU
+    if not gl_available():
+        pytest.skip("no OpenGL context can be made here")
+    context = runner.worker_context()
+    slots = context.Semaphore(0)  # none free yet
+    initargs = (context.Queue(), context.Queue(), context.Queue(), context.Value("i", 0), (),
+                runner._Claims(1, context).shared, str(tmp_path), True, slots)  # fmt: skip
+    with worker_pool(1, runner._init_worker, initargs, context) as pool:
+        job = pool.submit(_has_gl_context)
+        time.sleep(1.0)
+        assert not job.done()  # the worker waits for a slot
+        slots.release()
+        assert job.result(timeout=60) is True
+    assert slots.acquire(timeout=5)  # given back once made
