@@ -502,3 +502,41 @@ def test_shaded_rain_and_night_effects_are_the_same_on_an_rgba_view_and_a_copy()
                 np.ascontiguousarray(rgba[..., :3]), depth, conditions, night, 7, shaded=shaded
             )
             assert np.array_equal(view, copy), (weather, shaded)
+
+
+def test_rain_streaks_are_the_lines_drawn_one_number_and_one_line_at_a_time():
+    """The streaks' numbers drawn in one call and their lines in one `polylines` give the same
+    weights, and leave the generator where, as a call per number and a `line` per streak (the
+    definition, written out here) do."""
+    import cv2
+
+    from drivee2e_data.sim.conditions import RAIN_OPACITY, RAIN_STREAKS, rain_streaks
+
+    for shape, seed in (((900, 1600), 0), ((900, 1600), 11), ((90, 160), 3), ((450, 800), 8)):
+        rng = np.random.default_rng(seed)
+        expected = np.zeros(shape, np.float32)
+        height, width = shape
+        for _ in range(RAIN_STREAKS):
+            x, y = int(rng.integers(width)), int(rng.integers(height))
+            length = int(rng.integers(height // 30, height // 10))
+            cv2.line(expected, (x, y), (x + length // 6, y + length), 1.0, 1, cv2.LINE_AA)
+        expected *= RAIN_OPACITY
+        ours = np.random.default_rng(seed)
+        assert np.array_equal(rain_streaks(shape, ours), expected), (shape, seed)
+        assert ours.integers(1 << 30) == rng.integers(1 << 30)  # the generator left alike
+        assert 0.0 < expected.max() <= RAIN_OPACITY and (expected > 0).mean() < 0.1
+
+
+def test_the_rain_canvas_is_zero_again_after_each_image_even_a_failed_one():
+    from unittest import mock
+
+    from drivee2e_data.sim import conditions
+
+    rgb = np.random.default_rng(6).integers(0, 256, (90, 160, 3), dtype=np.uint8)
+    first = conditions._rain(rgb, np.random.default_rng(1))
+    assert not conditions._streak_canvas((90, 160)).any()
+    assert np.array_equal(conditions._rain(rgb, np.random.default_rng(1)), first)  # no leftovers
+    with mock.patch.object(np, "flatnonzero", side_effect=MemoryError), pytest.raises(MemoryError):
+        conditions._rain(rgb, np.random.default_rng(2))  # fails after drawing
+    assert not conditions._streak_canvas((90, 160)).any()
+    assert np.array_equal(conditions._rain(rgb, np.random.default_rng(1)), first)

@@ -200,10 +200,22 @@ def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np
 def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
     """Bright, slanted streaks blended over the image: OpenCV's `blendLinear` arithmetic (the
     same bytes), worked out only at the pixels the streaks touch, a few percent of the image
-    (a 1600x900 camera in 1.4 ms against 4.4-5.1 for blendLinear over all of it, one thread)."""
-    streaks = rain_streaks(image.shape[:2], rng)
-    touched = np.flatnonzero(streaks > 0.0)  # a bool's flatnonzero: a tenth of a float's time
-    weight = streaks.ravel()[touched][:, None]
+    (a 1600x900 camera in 1.4 ms against 4.4-5.1 for blendLinear over all of it, one thread).
+    The streaks are drawn on a canvas kept zeroed in this process (`_streak_canvas`) and
+    weighted only where they touch: a fresh canvas scaled whole, as `rain_streaks` gives it,
+    had the system zero and map all of its 5.8 MB every camera."""
+    import cv2
+
+    canvas = _streak_canvas(image.shape[:2])
+    flat = canvas.ravel()
+    try:
+        cv2.polylines(canvas, _streak_lines(image.shape[:2], rng), False, 1.0, 1, cv2.LINE_AA)
+        touched = np.flatnonzero(canvas > 0.0)  # a bool's flatnonzero: a tenth of a float's time
+        weight = (flat[touched] * RAIN_OPACITY)[:, None]  # as `rain_streaks` scales them
+        flat[touched] = 0.0  # zeroed again for the next image
+    except BaseException:
+        canvas.fill(0.0)  # whatever was drawn
+        raise
     pixels = image.reshape(-1, image.shape[2])
     blended = (pixels[touched] * (1.0 - weight) + np.float32(RAIN_RGB) * weight) / np.float32(
         1.0 + BLEND_EPSILON
@@ -213,18 +225,37 @@ def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint
     return result
 
 
+@functools.lru_cache(maxsize=2)
+def _streak_canvas(shape: tuple[int, int]) -> NDArray[np.float32]:
+    """(H, W) zeros that `_rain` draws its streaks on and zeroes again after each image."""
+    return np.zeros(shape, np.float32)
+
+
 def rain_streaks(shape: tuple[int, int], rng: np.random.Generator) -> NDArray[np.float32]:
-    """(H, W) weights in [0, RAIN_OPACITY] of `RAIN_STREAKS` slanted, anti-aliased streaks."""
+    """(H, W) weights in [0, RAIN_OPACITY] of `RAIN_STREAKS` slanted, anti-aliased streaks
+    (`_streak_lines`)."""
     import cv2
 
     streaks = np.zeros(shape, np.float32)
-    height, width = shape
-    for _ in range(RAIN_STREAKS):
-        x, y = int(rng.integers(width)), int(rng.integers(height))
-        length = int(rng.integers(height // 30, height // 10))
-        cv2.line(streaks, (x, y), (x + length // 6, y + length), 1.0, 1, cv2.LINE_AA)
+    cv2.polylines(streaks, _streak_lines(shape, rng), False, 1.0, 1, cv2.LINE_AA)
     streaks *= RAIN_OPACITY
     return streaks
+
+
+def _streak_lines(shape: tuple[int, int], rng: np.random.Generator) -> list[NDArray[np.int32]]:
+    """`RAIN_STREAKS` lines ((2, 2) pixel end points each), to be drawn in order, one pixel
+    wide, anti-aliased: each from (x, y), x and y uniform over the image, `length` rows long (a
+    30th to a 10th of the height) and leaning a sixth of that to the right. The three numbers of
+    all streaks come from one call (numpy draws an array of bounds element by element: the same
+    numbers as a call per number) and the lines go to one `polylines` (the same pixels as a
+    `line` each): 0.24 ms a 1600x900 camera against 0.94 with a call per number and line."""
+    height, width = shape
+    low = np.tile(np.array([0, 0, height // 30], np.int64), RAIN_STREAKS)
+    high = np.tile(np.array([width, height, height // 10], np.int64), RAIN_STREAKS)
+    x, y, length = rng.integers(low, high).reshape(RAIN_STREAKS, 3).T
+    starts = np.stack([x, y], axis=1)
+    ends = np.stack([x + length // 6, y + length], axis=1)
+    return list(np.stack([starts, ends], axis=1).astype(np.int32))
 
 
 def _sensor_effects(
