@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
+import statistics
 import time
 
 MODES = ("held", "released", "none")
@@ -68,19 +69,14 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -
     os._exit(0)
 
 
-def _median(values: list[float]) -> float:
-    ordered = sorted(values)
-    middle = len(ordered) // 2
-    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
-
-
 def creation(spans: list[tuple[float, float]]) -> dict[str, float]:
     """Of each process's (began, ready) in seconds: the median and longest time a process took,
     and, from the first beginning, when the median process was ready and the last."""
     each = [ready - began for began, ready in spans]
     first = min(began for began, _ in spans)
     readies = [ready - first for _, ready in spans]
-    return {"median": _median(each), "longest": max(each), "ready": _median(readies),
+    return {"median": statistics.median(each), "longest": max(each),
+            "ready": statistics.median(readies),
             "span": max(readies)}  # fmt: skip
 
 

@@ -204,12 +204,11 @@ def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint
     The streaks are drawn on a canvas kept zeroed in this process (`_streak_canvas`) and
     weighted only where they touch: a fresh canvas scaled whole, as `rain_streaks` gives it,
     had the system zero and map all of its 5.8 MB every camera."""
-    import cv2
 
     canvas = _streak_canvas(image.shape[:2])
     flat = canvas.ravel()
     try:
-        cv2.polylines(canvas, _streak_lines(image.shape[:2], rng), False, 1.0, 1, cv2.LINE_AA)
+        _draw_streaks(canvas, rng)
         touched = np.flatnonzero(canvas > 0.0)  # a bool's flatnonzero: a tenth of a float's time
         weight = (flat[touched] * RAIN_OPACITY)[:, None]  # as `rain_streaks` scales them
         flat[touched] = 0.0  # zeroed again for the next image
@@ -233,29 +232,31 @@ def _streak_canvas(shape: tuple[int, int]) -> NDArray[np.float32]:
 
 def rain_streaks(shape: tuple[int, int], rng: np.random.Generator) -> NDArray[np.float32]:
     """(H, W) weights in [0, RAIN_OPACITY] of `RAIN_STREAKS` slanted, anti-aliased streaks
-    (`_streak_lines`)."""
-    import cv2
+    (`_draw_streaks`)."""
 
     streaks = np.zeros(shape, np.float32)
-    cv2.polylines(streaks, _streak_lines(shape, rng), False, 1.0, 1, cv2.LINE_AA)
+    _draw_streaks(streaks, rng)
     streaks *= RAIN_OPACITY
     return streaks
 
 
-def _streak_lines(shape: tuple[int, int], rng: np.random.Generator) -> list[NDArray[np.int32]]:
-    """`RAIN_STREAKS` lines ((2, 2) pixel end points each), to be drawn in order, one pixel
-    wide, anti-aliased: each from (x, y), x and y uniform over the image, `length` rows long (a
-    30th to a 10th of the height) and leaning a sixth of that to the right. The three numbers of
-    all streaks come from one call (numpy draws an array of bounds element by element: the same
-    numbers as a call per number) and the lines go to one `polylines` (the same pixels as a
-    `line` each): 0.24 ms a 1600x900 camera against 0.94 with a call per number and line."""
-    height, width = shape
+def _draw_streaks(canvas: NDArray[np.float32], rng: np.random.Generator) -> None:
+    """`RAIN_STREAKS` lines drawn on `canvas` (H, W) at full weight 1, one pixel wide,
+    anti-aliased, in order: each from (x, y), x and y uniform over the image, `length` rows long
+    (a 30th to a 10th of the height) and leaning a sixth of that to the right. The three numbers
+    of all streaks come from one call (numpy draws an array of bounds element by element: the
+    same numbers as a call per number) and the lines go to one `polylines` (the same pixels as
+    a `line` each): 0.24 ms a 1600x900 camera against 0.94 with a call per number and line."""
+    import cv2
+
+    height, width = canvas.shape
     low = np.tile(np.array([0, 0, height // 30], np.int64), RAIN_STREAKS)
     high = np.tile(np.array([width, height, height // 10], np.int64), RAIN_STREAKS)
     x, y, length = rng.integers(low, high).reshape(RAIN_STREAKS, 3).T
     starts = np.stack([x, y], axis=1)
     ends = np.stack([x + length // 6, y + length], axis=1)
-    return list(np.stack([starts, ends], axis=1).astype(np.int32))
+    lines = list(np.stack([starts, ends], axis=1).astype(np.int32))  # (2, 2) each
+    cv2.polylines(canvas, lines, False, 1.0, 1, cv2.LINE_AA)
 
 
 def _sensor_effects(
