@@ -124,20 +124,32 @@ def test_jpeg_round_trip_is_close():
     assert np.abs(decoded.astype(int) - rgb).mean() < 3
 
 
-def test_jpeg_of_the_rgb_channels_of_an_rgba_image():
-    """The GL renderer's views are RGB views of the RGBA it read: encoded from the four bytes
-    a pixel in one conversion, to the same bytes as the contiguous RGB; other views of an RGBA
-    array (its last three channels, a crop) are not taken for one."""
-    from drivee2e_data.sim.gl_readback import rgba_under
+def test_jpeg_of_an_rgb_view_of_a_bgra_image():
+    """The GL renderer's views are RGB views of the BGRA it read (its first three bytes
+    backwards): encoded from the BGRA as it is, to the same bytes as the contiguous RGB; other
+    views of a four-channel array (RGBA's first three, BGRA's last three, a crop) are not taken
+    for one."""
+    from drivee2e_data.sim.gl_readback import bgra_under
 
     rng = np.random.default_rng(3)
-    rgba = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
-    rgba[:, :80, :3] = (200, 40, 40)
-    rgb = rgba[..., :3]
-    assert rgba_under(rgb) is rgba
-    assert rgba_under(rgba[..., 1:]) is None and rgba_under(rgba[:45, :, :3]) is None
+    bgra = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
+    bgra[:, :80, :3] = (40, 40, 200)  # red, blue first
+    rgb = bgra[..., 2::-1]
+    assert bgra_under(rgb) is bgra
+    assert tuple(rgb[0, 0]) == (200, 40, 40)
+    for other in (bgra[..., :3], bgra[..., 3:0:-1], bgra[:45, :, 2::-1], bgra[:, 1:, 2::-1]):
+        assert bgra_under(other) is None
     assert encode_jpeg(rgb) == encode_jpeg(np.ascontiguousarray(rgb))
-    assert encode_jpeg(rgb) != encode_jpeg(np.ascontiguousarray(rgba[..., 1:]))
+    assert encode_jpeg(rgb) != encode_jpeg(np.ascontiguousarray(bgra[..., :3]))
+    decoded = cv2_decode(encode_jpeg(rgb, 95))
+    assert np.abs(decoded[:, :70].astype(int) - (200, 40, 40)).mean() < 3
+
+
+def cv2_decode(data: bytes) -> np.ndarray:
+    """RGB of JPEG bytes."""
+    import cv2
+
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)[:, :, ::-1]
 
 
 def test_visible_share_from_depth_agrees_with_the_body_mask(tmp_path):

@@ -461,8 +461,8 @@ def test_a_new_twin_folder_clears_those_of_processes_gone(tmp_path: Path):
     assert live.is_dir() and unnamed.is_dir()
 
 
-def test_rgb_views_of_an_rgba_read_are_made_contiguous_by_the_fast_path():
-    """The GL renderer's colour is an RGB view of the RGBA read back; the CPU weather (rain's
+def test_rgb_views_of_a_bgra_read_are_made_contiguous_by_the_fast_path():
+    """The GL renderer's colour is an RGB view of the BGRA read back; the CPU weather (rain's
     streaks, night noise) needs it contiguous: the same bytes as numpy's copy, by OpenCV's
     conversion (numpy's copy of such a view had cost 6 ms a camera), whatever the view."""
     from unittest import mock
@@ -470,20 +470,20 @@ def test_rgb_views_of_an_rgba_read_are_made_contiguous_by_the_fast_path():
     from drivee2e_data.sim import gl_readback
 
     rng = np.random.default_rng(4)
-    rgba = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
-    rgb = rgba[..., :3]
+    bgra = rng.integers(0, 256, (90, 160, 4), dtype=np.uint8)
+    rgb = bgra[..., 2::-1]
     with mock.patch.object(np, "ascontiguousarray", side_effect=AssertionError("slow path")):
         made = gl_readback.contiguous_rgb(rgb)
-    assert made.flags.c_contiguous and made.base is not rgba
+    assert made.flags.c_contiguous and made.base is not bgra
     assert np.array_equal(made, rgb)
     plain = np.ascontiguousarray(rgb)
     assert gl_readback.contiguous_rgb(plain) is plain  # already contiguous: itself
-    other = rgba[..., 1:]  # not the first three channels: copied the plain way
+    other = bgra[..., 1:]  # not the first three channels backwards: copied the plain way
     assert np.array_equal(gl_readback.contiguous_rgb(other), other)
     assert gl_readback.contiguous_rgb(other).flags.c_contiguous
 
 
-def test_shaded_rain_and_night_effects_are_the_same_on_an_rgba_view_and_a_copy():
+def test_shaded_rain_and_night_effects_are_the_same_on_a_bgra_view_and_a_copy():
     from datetime import datetime, timezone
 
     from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
@@ -497,9 +497,9 @@ def test_shaded_rain_and_night_effects_are_the_same_on_an_rgba_view_and_a_copy()
     for weather in (Weather.RAIN, Weather.FOG, Weather.CLEAR):
         conditions = Conditions(weather, TimeOfDay.NIGHT, when)
         for shaded in (True, False):
-            view = post_process(rgba[..., :3], depth, conditions, night, 7, shaded=shaded)
+            view = post_process(rgba[..., 2::-1], depth, conditions, night, 7, shaded=shaded)
             copy = post_process(
-                np.ascontiguousarray(rgba[..., :3]), depth, conditions, night, 7, shaded=shaded
+                np.ascontiguousarray(rgba[..., 2::-1]), depth, conditions, night, 7, shaded=shaded
             )
             assert np.array_equal(view, copy), (weather, shaded)
 

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
 from drivee2e_data.sim.conditions import post_process
-from drivee2e_data.sim.gl_readback import rgba_under
+from drivee2e_data.sim.gl_readback import bgra_under
 from drivee2e_data.sim.world import World
 
 
@@ -96,13 +96,14 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:
-    """JPEG bytes of an RGB image (contiguous, or the first three channels of an RGBA one, as
-    the GL renderer reads its views)."""
+    """JPEG bytes of an RGB image (contiguous, or a view of a BGRA one, as the GL renderer
+    reads its views: the BGRA goes to OpenCV's encoder as it is, which takes the blue, green
+    and red of each pixel's four bytes, the same bytes as from BGR)."""
     import cv2
 
-    rgba = rgba_under(rgb)
-    if rgba is not None:
-        bgr = cv2.cvtColor(rgba, cv2.COLOR_RGBA2BGR)
+    bgra = bgra_under(rgb)
+    if bgra is not None:
+        bgr = bgra
     else:
         bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
     ok, encoded = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])

@@ -95,33 +95,34 @@ class PixelReads:
         self.free, self.made = {}, []
 
 
-def rgba_under(rgb: NDArray[np.uint8]) -> NDArray[np.uint8] | None:
-    """The (H, W, 4) contiguous array whose first three channels `rgb` (H, W, 3) is, as the GL
-    renderer's colour views are (`GLRenderer.queue` reads RGBA), if it is one; else None."""
+def bgra_under(rgb: NDArray[np.uint8]) -> NDArray[np.uint8] | None:
+    """The (H, W, 4) contiguous BGRA array whose first three channels, backwards, `rgb`
+    (H, W, 3) is, as the GL renderer's colour views are (`GLRenderer.queue` reads BGRA), if it
+    is one; else None."""
     base = rgb.base
     if (
         isinstance(base, np.ndarray)
         and base.dtype == np.uint8
         and base.shape == (*rgb.shape[:2], 4)
         and base.flags.c_contiguous
-        and rgb.strides == base.strides
-        and rgb.__array_interface__["data"][0] == base.__array_interface__["data"][0]
+        and rgb.strides == (*base.strides[:2], -1)
+        and rgb.__array_interface__["data"][0] == base.__array_interface__["data"][0] + 2
     ):
         return base
     return None
 
 
 def contiguous_rgb(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    """`rgb` (H, W, 3) as a C-contiguous array: itself where it is one, a view of an RGBA read
-    (`rgba_under`) converted by OpenCV, else copied. numpy copies such a view a pixel at a time:
+    """`rgb` (H, W, 3) as a C-contiguous array: itself where it is one, a view of a BGRA read
+    (`bgra_under`) converted by OpenCV, else copied. numpy copies such a view a pixel at a time:
     6.2 ms a 1600x900 image against OpenCV's 0.07 here, and for the rain and night clips, whose
     cameras get streaks and noise on the CPU, that had made the slowest condition 1.36x the
     clear day's on an H100 host (docs/benchmarks.md, twentieth session)."""
     if rgb.flags.c_contiguous:
         return rgb
-    rgba = rgba_under(rgb)
-    if rgba is None:
+    bgra = bgra_under(rgb)
+    if bgra is None:
         return np.ascontiguousarray(rgb)
     import cv2
 
-    return cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)
+    return cv2.cvtColor(bgra, cv2.COLOR_BGRA2RGB)

@@ -62,10 +62,11 @@ CLEAR_RGB = (0.70, 0.78, 0.90)  # background of a view without a sky (labels)
 LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's daylight; ids only
 # the colour attachments each look's shaders write, in the order of their output locations
 # (scene.frag and sky.frag: colour, depth, body id; labels.frag: depth, body id); a view whose
-# ids are not read gets the first two alone
+# ids are not read gets the first two alone. Colour is held blue first (BGRA), the order the
+# JPEG encoder takes: it encodes the read-back bytes as they are (`camera.encode_jpeg`)
 FRAMEBUFFER_OUTPUTS = {
-    "camera": ("rgba", "depth", "body"),
-    "plain": ("rgba", "depth", "body"),
+    "camera": ("bgra", "depth", "body"),
+    "plain": ("bgra", "depth", "body"),
     "labels": ("depth", "body"),
 }
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
@@ -277,10 +278,11 @@ class PendingView:
         with current(self.context):
             arrays = list(self.pixels.result())
         if self.colour:
-            # the RGBA as read, seen as RGB without a copy: `camera.encode_jpeg` converts it to
-            # the encoder's BGR in one pass from the four bytes a pixel (a copy to RGB, then
-            # one to BGR, had been 0.5 ms a camera on 2 cores)
-            rgb = arrays.pop(0)[..., :3]
+            # the BGRA as read, seen as RGB without a copy (its first three bytes backwards):
+            # `camera.encode_jpeg` hands the BGRA to the encoder as it is (`gl_readback.bgra_under`;
+            # a conversion to BGR before had cost 0.8 ms a camera here, its fresh 4 MB output
+            # included)
+            rgb = arrays.pop(0)[..., 2::-1]
         else:
             rgb = np.zeros((self.height, self.width, 3), np.uint8)
         depth_m = arrays.pop(0)
@@ -600,7 +602,7 @@ class GLRenderer:
             framebuffer = context.framebuffer(
                 color_attachments=[
                     context.renderbuffer((width, height), components=4)
-                    if name == "rgba"
+                    if name == "bgra"
                     else context.renderbuffer((width, height), components=1, dtype="f4")
                     for name in outputs
                 ],
@@ -748,7 +750,7 @@ class GLRenderer:
             outputs = FRAMEBUFFER_OUTPUTS[look] if segmentation else FRAMEBUFFER_OUTPUTS[look][:2]
             framebuffer = self._framebuffer(width, height, outputs)
             framebuffer.use()
-            clear = {"rgba": (*CLEAR_RGB, 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
+            clear = {"bgra": (*CLEAR_RGB[::-1], 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
             # the sky, drawn last wherever nothing else is, writes every output a camera's or
             # the top view's pixel holds (colour, depth far_m, body 0): only a labels view,
             # without a sky, has its attachments cleared (clearing them cost llvmpipe 0.7 ms a
@@ -794,16 +796,16 @@ class GLRenderer:
                 self.sky_array.render(moderngl.TRIANGLES, vertices=3)
                 self.context.depth_func = "<"
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
-            # it (RGBA) and its alpha dropped by OpenCV: asking GL for RGB makes the driver
-            # convert on the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
+            # it (four bytes a pixel, BGRA): asking GL for three makes the driver convert on
+            # the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
             reads = tuple(
-                Read(outputs.index(name), 4, "f1") if name == "rgba" else
+                Read(outputs.index(name), 4, "f1") if name == "bgra" else
                 Read(outputs.index(name), 1, "f4")
-                for name in ("rgba", "depth", "body")
+                for name in ("bgra", "depth", "body")
                 if name in outputs and (name != "body" or segmentation)
             )  # fmt: skip
             pixels = self.readback.read(framebuffer, reads, width, height, queued)
-        return PendingView(self.context, pixels, width, height, "rgba" in outputs, segmentation)
+        return PendingView(self.context, pixels, width, height, "bgra" in outputs, segmentation)
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the

@@ -56,7 +56,7 @@ in vec4 shadow_position;
 flat in float body;
 flat in float emission;
 flat in int material;
-layout(location = 0) out vec4 rgba;
+layout(location = 0) out vec4 bgra;  // blue first: the JPEG encoder's order (gl_readback)
 layout(location = 1) out float depth_out;
 layout(location = 2) out float body_out;  // where the view reads ids
 
@@ -199,7 +199,7 @@ void main() {
 #else
     vec3 result = lit;
 #endif
-    rgba = vec4(clamp(result, 0.0, 1.0), 1.0);
+    bgra = vec4(clamp(result, 0.0, 1.0).bgr, 1.0);
     body_out = body;
     depth_out = eye_depth;
 }
