@@ -233,3 +233,50 @@ def test_a_box_half_hidden_behind_a_wall_reads_about_half_visible(renderer, car_
     assert (area_px > 16 * DEPTH_SAMPLES) == (car_x < 20.0)  # the near car: a grid of pixels
     assert shares["open"] > 0.9
     assert 0.35 < shares["half"] < 0.65
+
+
+def test_a_frames_boxes_are_the_same_from_depth_gathered_at_their_pixels(tmp_path, monkeypatch):
+    """The suite chooses each camera's visibility pixels before drawing (`depth_pixels`) and a
+    GPU reads the depth there alone; forced here on llvmpipe, a frame's boxes (shares, levels,
+    the cameras that see them) are those of the whole depth image, and the views kept no depth
+    image. A view with samples but no pixels is refused."""
+    from drivee2e_data.sensors import suite as suite_module
+    from drivee2e_data.sensors.annotate import visible_shares
+    from drivee2e_data.sensors.suite import SensorSuite, SuiteOptions
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    if not gl_available():
+        pytest.skip("no OpenGL context (EGL) here")
+    from factories import synthetic_clip
+
+    intersection_map, scenario = synthetic_clip(tmp_path)
+    options = SuiteOptions(image_size=(400, 225), lidar="depth")
+    frames = np.linspace(0, scenario.num_frames - 1, 3).astype(int)
+    views: list = []
+    taken = suite_module.render
+
+    def keeping(*args, **kwargs):
+        view = taken(*args, **kwargs)
+        views.append(view)
+        return view
+
+    monkeypatch.setattr(suite_module, "render", keeping)
+    with World(intersection_map, scenario, renderer="gl") as world:
+        suite = SensorSuite(world, options)
+        whole = [suite.capture(int(frame)).boxes for frame in frames]
+        assert all(view.depth_m is not None and view.depth_samples is None for view in views)
+        world.gl.gathers = True
+        views.clear()
+        gathered = [suite.capture(int(frame)).boxes for frame in frames]
+        assert views and all(view.depth_m is None for view in views)
+        assert sum(len(view.depth_samples) for view in views) > 1000
+        with pytest.raises(ValueError, match="pixels"):
+            visible_shares(views[0], [1], np.zeros((1, 8, 3)), np.eye(4))
+    fields = ("track_id", "visible_share", "visibility", "cameras", "num_lidar_points")
+    seen = 0
+    for ours, expected in zip(gathered, whole, strict=True):
+        assert len(ours) == len(expected)
+        for box, reference in zip(ours, expected, strict=True):
+            assert [getattr(box, f) for f in fields] == [getattr(reference, f) for f in fields]
+            seen += box.visible_share > 0
+    assert seen >= 5

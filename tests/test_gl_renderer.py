@@ -195,6 +195,36 @@ def test_views_read_through_pixel_buffers_are_the_views_read_at_once(site):
     assert queued[2].rgb.max() == 0  # a labels view draws no colour
 
 
+def test_depth_gathered_at_chosen_pixels_is_the_whole_depth_there(site):
+    """On a GPU a camera's depth is read at the pixels box visibility asks for alone (a gather
+    pass, `DepthGather`). Forced here on llvmpipe: the samples are the whole image's floats at
+    those pixels, in their order, the colour is the same, the whole depth is not read, an empty
+    set reads nothing, and a larger set after a smaller grows the buffers."""
+    intersection_map, scenario = site
+    with World(intersection_map, scenario, renderer="gl") as world:
+        ego = world.scenario.ego
+        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), ego.track_id)
+        world.set_time(20)
+        eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
+        target = eye + 10 * np.array([1.0, 0.0, 0.0])
+        whole = world.render(eye, target, 320, 180, 40.0, near_m=0.5)
+        assert not world.gl.gathers  # llvmpipe reads the whole image by itself
+        world.gl.gathers = True
+        rng = np.random.default_rng(2)
+        for count in (50, 0, 9000):
+            texels = np.stack([rng.integers(0, 320, count), rng.integers(0, 180, count)], 1)
+            texels = texels.astype(np.int32)
+            image = world.render(eye, target, 320, 180, 40.0, near_m=0.5, depth_at=texels)
+            assert image.depth_m is None and image.depth_samples.shape == (count,)
+            assert image.depth_samples.dtype == np.float32
+            expected = whole.depth_m[texels[:, 1], texels[:, 0]]
+            assert np.array_equal(image.depth_samples, expected), count
+            assert np.array_equal(image.rgb, whole.rgb)
+        assert world.gl.gather.capacity >= 9000
+    assert world.gl.gather is None  # released with the world
+    assert len(np.unique(expected)) > 100  # sky, road and buildings: many depths
+
+
 def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):
     """Collection syncs each frame twice (the cameras with the ego hidden, the top view with it
     shown); the actors whose pose did not change keep their placed vertices. The ego's body

@@ -6,6 +6,7 @@ inside a box.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -13,7 +14,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.scenario import Track
-from drivee2e_data.sensors.camera import FAR_M, NEAR_M, CameraFrame, camera_to_world
+from drivee2e_data.sensors.camera import FAR_M, NEAR_M, CameraFrame, DrawnView, camera_to_world
 from drivee2e_data.sim.world import depth_step_m
 
 # nuScenes visibility levels: 1: 0-40%, 2: 40-60%, 3: 60-80%, 4: 80-100% of the box seen
@@ -57,7 +58,9 @@ def projected_area(
 
 
 def _image_points(
-    frame: CameraFrame, corners_world: NDArray[np.float64], ego_to_world: NDArray[np.float64]
+    frame: DrawnView | CameraFrame,
+    corners_world: NDArray[np.float64],
+    ego_to_world: NDArray[np.float64],
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """Boxes' corners `(B, 8, 3)` in the camera's image: which lie in front of it `(B, 8)` and
     their pixels `(B, 8, 2)` (meaningless where behind)."""
@@ -71,7 +74,7 @@ def _image_points(
 
 
 def _over_image(
-    frame: CameraFrame, in_front: NDArray[np.bool_], pixels: NDArray[np.float64]
+    frame: DrawnView | CameraFrame, in_front: NDArray[np.bool_], pixels: NDArray[np.float64]
 ) -> NDArray[np.bool_]:
     """(B,) whether each box (`_image_points`) may show in the image: a corner in front of the
     camera, and the bounding rectangle of those over the image."""
@@ -102,39 +105,84 @@ def visible_share(
     return float(visible_shares(frame, [body], corners_world[None], ego_to_world)[0])
 
 
+@dataclass(frozen=True)
+class DepthPixels:
+    """The pixels of a view box visibility reads the depth at (`depth_pixels`): of each box
+    among those asked that may show (`boxes`, their indices), `counts` pixels, laid end to end
+    in `rows` and `columns` (of the view as drawn)."""
+
+    boxes: NDArray[np.intp]  # (K,)
+    counts: NDArray[np.intp]  # (K,)
+    rows: NDArray[np.intp]  # (N,)
+    columns: NDArray[np.intp]  # (N,)
+
+    @property
+    def texels(self) -> NDArray[np.int32]:
+        """(N, 2) column and row of each pixel: what the renderer gathers (`render`'s
+        `depth_at`)."""
+        return np.stack([self.columns, self.rows], axis=1).astype(np.int32)
+
+
+def depth_pixels(
+    view: DrawnView | CameraFrame,
+    corners_world: NDArray[np.float64],
+    ego_to_world: NDArray[np.float64],
+) -> DepthPixels:
+    """The pixels `visible_shares` tests for boxes `corners_world` (B, 8, 3) in a camera's view:
+    each box's covered pixels (`_covered_pixels`), evenly thinned to `DEPTH_SAMPLES`. Geometry
+    alone: known before the view is drawn, so that the renderer reads the depth at these alone
+    (`camera.render`'s `depth_at`)."""
+    in_front, pixels = _image_points(view, corners_world, ego_to_world)
+    may_show = _over_image(view, in_front, pixels)
+    boxes, picked = [], []
+    for k, shows in enumerate(may_show):
+        found = _covered_pixels(view, pixels[k][in_front[k]]) if shows else None
+        if found is None:
+            continue
+        # a share needs no more than a few thousand of a near box's pixels: an even subsample
+        rows, columns = found
+        step = max(1, len(rows) // DEPTH_SAMPLES)
+        boxes.append(k)
+        picked.append((rows[::step], columns[::step]))
+    if not boxes:
+        empty = np.zeros(0, np.intp)
+        return DepthPixels(empty, empty, empty, empty)
+    return DepthPixels(
+        np.array(boxes, np.intp),
+        np.array([len(rows) for rows, _ in picked], np.intp),
+        np.concatenate([rows for rows, _ in picked]),
+        np.concatenate([columns for _, columns in picked]),
+    )
+
+
 def visible_shares(
     frame: CameraFrame,
     bodies: Sequence[int],
     corners_world: NDArray[np.float64],
     ego_to_world: NDArray[np.float64],
+    pixels: DepthPixels | None = None,
 ) -> NDArray[np.float64]:
     """`visible_share` of each of B boxes (`bodies` (B,), `corners_world` (B, 8, 3)) in one
     view: the boxes' pixels gathered and tested together (a frame asks this of six views and
-    up to a hundred boxes, and one box at a time the work was numpy's per-call overhead)."""
+    up to a hundred boxes, and one box at a time the work was numpy's per-call overhead).
+    `pixels`: `depth_pixels` of these boxes, as the view was drawn with (its `depth_samples`
+    are the depth there); made here if not given."""
     shares = np.zeros(len(bodies))
-    in_front, pixels = _image_points(frame, corners_world, ego_to_world)
-    may_show = _over_image(frame, in_front, pixels)
-    covered = [
-        _covered_pixels(frame, pixels[k][in_front[k]]) if shows else None
-        for k, shows in enumerate(may_show)
-    ]
-    boxes = [k for k, found in enumerate(covered) if found is not None]
-    if not boxes:
+    if pixels is None:
+        if frame.depth_samples is not None:
+            raise ValueError("a view drawn with depth samples needs the pixels they were read at")
+        pixels = depth_pixels(frame, corners_world, ego_to_world)
+    if not len(pixels.boxes):
         return shares
-    # a share needs no more than a few thousand of a near box's pixels: an even subsample
-    picked = []
-    for k in boxes:
-        rows, columns = covered[k]
-        step = max(1, len(rows) // DEPTH_SAMPLES)
-        picked.append((rows[::step], columns[::step]))
-    counts = np.array([len(rows) for rows, _ in picked])
+    boxes, counts, rows, columns = pixels.boxes, pixels.counts, pixels.rows, pixels.columns
     ends = np.cumsum(counts)
     box = np.repeat(np.arange(len(boxes)), counts)  # each pixel's box, among `boxes`
-    rows = np.concatenate([rows for rows, _ in picked])
-    columns = np.concatenate([columns for _, columns in picked])
     scale_x, scale_y = frame.drawn_per_camera_px
     intrinsic = frame.camera.intrinsic
-    depth = frame.depth_m[rows, columns].astype(np.float64)
+    if frame.depth_samples is not None:  # read at these pixels alone (`render`'s depth_at)
+        depth = frame.depth_samples.astype(np.float64)
+    else:
+        depth = frame.depth_m[rows, columns].astype(np.float64)
     # rays as (3, N) rows of x, y, z (camera z = 1), so that every step below runs over
     # contiguous rows rather than across the short axis of (N, 3)
     rays = np.stack(
@@ -221,7 +269,7 @@ DEPTH_SAMPLES = 4000  # pixels per box at most for the share by depth
 
 
 def _covered_pixels(
-    frame: CameraFrame, corners_px: NDArray[np.float64]
+    frame: DrawnView | CameraFrame, corners_px: NDArray[np.float64]
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]] | None:
     """Rows and columns (of the view as drawn) inside the projection of a box whose corners in
     front of the camera project to `corners_px` `(K, 2)` (camera pixels); None if none. A
@@ -239,7 +287,7 @@ def _covered_pixels(
     area = polygon_area(vertices)
     if area < 1.0:
         return None
-    height, width = frame.depth_m.shape
+    height, width = frame.drawn_shape
     xs, ys = [x for x, _ in vertices], [y for _, y in vertices]
     x0, y0 = int(np.floor(min(xs))), int(np.floor(min(ys)))
     x1 = min(int(np.ceil(max(xs))), width)

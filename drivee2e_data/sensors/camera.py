@@ -15,6 +15,21 @@ from drivee2e_data.sim.world import World
 
 
 @dataclass(frozen=True)
+class DrawnView:
+    """A camera and the size its view is drawn at (`World.drawn_size`): what box visibility
+    needs to choose its pixels before the view is drawn."""
+
+    camera: Camera
+    drawn_shape: tuple[int, int]  # (rows, columns)
+
+    @property
+    def drawn_per_camera_px(self) -> tuple[float, float]:
+        """Drawn pixels per camera pixel along x and y."""
+        rows, columns = self.drawn_shape
+        return columns / self.camera.width, rows / self.camera.height
+
+
+@dataclass(frozen=True)
 class CameraFrame:
     """A camera's view as the renderer drew it: at the camera's size, or smaller where the
     renderer draws smaller (EGL: at most 1024x768, `World.drawn_size`); `with_conditions`
@@ -22,15 +37,23 @@ class CameraFrame:
 
     camera: Camera
     rgb: NDArray[np.uint8]  # (h, w, 3) as drawn
-    depth_m: NDArray[np.float32]  # (h, w)
+    depth_m: NDArray[np.float32] | None  # (h, w); None where only `depth_samples` were read
     mask: NDArray[np.int32] | None  # (h, w) pybullet body id per pixel, -1 where none
     # depth as float32 from the shader (the GL renderer), not from a 16-bit depth buffer
     float_depth: bool = False
+    # (N,) the depth at the pixels `render`'s `depth_at` named, where the renderer gathered
+    # them (`World.render`); the whole `depth_m` was not read back then
+    depth_samples: NDArray[np.float32] | None = None
+
+    @property
+    def drawn_shape(self) -> tuple[int, int]:
+        """(rows, columns) as drawn."""
+        return self.rgb.shape[0], self.rgb.shape[1]
 
     @property
     def drawn_per_camera_px(self) -> tuple[float, float]:
         """Drawn pixels per camera pixel along x and y."""
-        return self.rgb.shape[1] / self.camera.width, self.rgb.shape[0] / self.camera.height
+        return DrawnView(self.camera, self.drawn_shape).drawn_per_camera_px
 
 
 # The near plane sets the depth buffer's precision (it falls with distance squared over the near
@@ -45,19 +68,32 @@ def camera_to_world(camera: Camera, ego_to_world: NDArray[np.float64]) -> NDArra
     return ego_to_world @ camera.sensor_to_ego
 
 
+def drawn_view(world: World, camera: Camera) -> DrawnView:
+    """The camera with the size `world` draws its view at."""
+    width, height = world.drawn_size(camera.width, camera.height)
+    return DrawnView(camera, (height, width))
+
+
 def render(
-    world: World, camera: Camera, ego_to_world: NDArray[np.float64], mask: bool = True
+    world: World,
+    camera: Camera,
+    ego_to_world: NDArray[np.float64],
+    mask: bool = True,
+    depth_at: NDArray[np.int32] | None = None,
 ) -> CameraFrame:
-    """The camera's view at the world's current frame (the rig's cameras are level)."""
+    """The camera's view at the world's current frame (the rig's cameras are level).
+    `depth_at` `(N, 2)` (column, row as drawn): the pixels whose depth is needed, read alone
+    where the renderer can (`CameraFrame.depth_samples`)."""
     pose = camera_to_world(camera, ego_to_world)
     eye = pose[:3, 3]
     target = eye + 10.0 * pose[:3, 2]
     image = world.render(
         eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask,
-        near_m=NEAR_M, far_m=FAR_M, native=True,
+        near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at,
     )  # fmt: skip
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
-    return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation, world.renderer == "gl")
+    return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation,
+                       world.renderer == "gl", image.depth_samples)  # fmt: skip
 
 
 def noise_seed(scenario_id: str, frame: int, camera: Camera) -> int:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.scenario import SignalState
+from drivee2e_data.scenario import SignalState, Track
 from drivee2e_data.sensors import (
     annotate,
     bev,
@@ -26,7 +26,13 @@ from drivee2e_data.sensors import (
     lidar_depth,
     radar,
 )
-from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, render, with_conditions
+from drivee2e_data.sensors.camera import (
+    CameraFrame,
+    drawn_view,
+    encode_jpeg,
+    render,
+    with_conditions,
+)
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sensors.imu_gnss import enu_to_wgs84, imu
@@ -175,9 +181,20 @@ class SensorSuite:
         mask = self.label_tables is not None or self.options.visibility == "mask"
         labels: dict[str, dict[str, bytes]] = {}
         on_cpu = self.options.post_process == "cpu"
-        for camera in self.rig.cameras:
+        with _timed(seconds, "annotate"):
+            annotated = self._to_annotate(frame, ego_to_world)
+            corners = np.stack([c for _, _, c in annotated]) if annotated else np.zeros((0, 8, 3))
+        # box visibility reads the cameras' depth at a few pixels a box: chosen before drawing,
+        # so that a GPU reads back those alone (the CUDA path finishes images from the depth)
+        pixels: list[annotate.DepthPixels | None] = [None] * len(self.rig.cameras)
+        for k, camera in enumerate(self.rig.cameras):
+            if not mask and on_cpu:
+                with _timed(seconds, "annotate"):
+                    view_size = drawn_view(world, camera)
+                    pixels[k] = annotate.depth_pixels(view_size, corners, ego_to_world)
             with _timed(seconds, "render"):
-                view = render(world, camera, ego_to_world, mask=mask)
+                depth_at = None if pixels[k] is None else pixels[k].texels
+                view = render(world, camera, ego_to_world, mask=mask, depth_at=depth_at)
             if on_cpu:
                 with _timed(seconds, "post_process"):
                     rgb = with_conditions(world, view, frame)
@@ -227,7 +244,9 @@ class SensorSuite:
                 for r in self.rig.radars
             }
         with _timed(seconds, "annotate"):
-            boxes = self._annotate(frame, ego_to_world, views, sweep, lidar_to_world, returns)
+            boxes = self._annotate(
+                frame, ego_to_world, views, sweep, lidar_to_world, returns, annotated, pixels
+            )
         with _timed(seconds, "bev"):
             # the top view shows the ego too: the GL renderer draws it from the cameras' state
             # (hidden from them, it casts its shadow there); pybullet's draw bodies where they are
@@ -255,6 +274,24 @@ class SensorSuite:
             camera_labels=labels,
         )
 
+    def _to_annotate(
+        self, frame: int, ego_to_world: NDArray[np.float64]
+    ) -> list[tuple[Track, int, NDArray[np.float64]]]:
+        """(track, body, corners (8, 3)) of each box the frame annotates: the agents valid at
+        the frame within `ANNOTATION_RANGE_M` of the ego."""
+        world, scenario = self.world, self.world.scenario
+        annotated = []
+        for track in scenario.tracks:
+            if track.track_id == scenario.ego_id or not track.valid[frame]:
+                continue
+            centre_xy = np.array([track.x_m[frame], track.y_m[frame]])
+            if np.hypot(*(centre_xy - ego_to_world[:2, 3])) > ANNOTATION_RANGE_M:
+                continue
+            blueprint = world.blueprints[track.track_id]
+            corners = annotate.box_corners_3d(track, frame, blueprint.size_m)
+            annotated.append((track, world.bodies[track.track_id], corners))
+        return annotated
+
     def _annotate(
         self,
         frame: int,
@@ -263,8 +300,12 @@ class SensorSuite:
         sweep: lidar.LidarSweep,
         lidar_to_world: NDArray[np.float64],
         returns: dict[str, radar.RadarReturns],
+        annotated: list[tuple[Track, int, NDArray[np.float64]]],
+        pixels: list[annotate.DepthPixels | None],
     ) -> tuple[BoxAnnotation, ...]:
-        world, scenario = self.world, self.world.scenario
+        """The boxes of `annotated` (`_to_annotate`), each view's visible shares from the
+        pixels its depth was read at (`pixels`, None: chosen here)."""
+        world = self.world
         world_to_ego = np.linalg.inv(ego_to_world)
         ego_yaw = float(self.motion.yaw_rad[frame])
         order = np.argsort(sweep.body, kind="stable")
@@ -275,23 +316,15 @@ class SensorSuite:
         for result in returns.values():
             for track_id in result.track_ids:
                 radar_counts[track_id] = radar_counts.get(track_id, 0) + 1
-        annotated = []  # (track, body, corners) of each box to annotate
-        for track in scenario.tracks:
-            if track.track_id == scenario.ego_id or not track.valid[frame]:
-                continue
-            centre_xy = np.array([track.x_m[frame], track.y_m[frame]])
-            if np.hypot(*(centre_xy - ego_to_world[:2, 3])) > ANNOTATION_RANGE_M:
-                continue
-            blueprint = world.blueprints[track.track_id]
-            corners = annotate.box_corners_3d(track, frame, blueprint.size_m)
-            annotated.append((track, world.bodies[track.track_id], corners))
         # (cameras, boxes): each view tests all its boxes at once
         by_view = np.zeros((len(views), len(annotated)))
         if annotated:
             bodies = [body for _, body, _ in annotated]
             all_corners = np.stack([corners for _, _, corners in annotated])
             for k, view in enumerate(views):
-                by_view[k] = annotate.visible_shares(view, bodies, all_corners, ego_to_world)
+                by_view[k] = annotate.visible_shares(
+                    view, bodies, all_corners, ego_to_world, pixels[k]
+                )
         boxes = []
         for index, (track, body, corners) in enumerate(annotated):
             centre_xy = np.array([track.x_m[frame], track.y_m[frame]])

@@ -70,8 +70,12 @@ DEPTH_BITS = 16  # pybullet asks EGL for 8 bits at least; depth errors seen on l
 @dataclass(frozen=True)
 class Image:
     rgb: NDArray[np.uint8]  # (H, W, 3)
-    depth_m: NDArray[np.float32]  # (H, W) metric depth along the optical axis
+    # (H, W) metric depth along the optical axis; None where only `depth_samples` were read
+    depth_m: NDArray[np.float32] | None
     segmentation: NDArray[np.int32] | None  # (H, W) body id per pixel, -1 for background
+    # (N,) the depth at the pixels `render`'s `depth_at` named, where the renderer gathered
+    # them on the GPU instead of reading the whole image (`GLRenderer.gathers`)
+    depth_samples: NDArray[np.float32] | None = None
 
     def resized(self, width: int, height: int) -> Image:
         """The image at another size: RGB interpolated bilinearly, depth and body ids taken from
@@ -432,6 +436,7 @@ class World:
         look: str = "camera",
         casters_drawn: bool = False,
         queued: bool = True,
+        depth_at: NDArray[np.int32] | None = None,
     ) -> Callable[[], Image]:
         """The image drawn, returned by the function this returns: with the GL renderer on a
         GPU and `queued`, its pixels come back through pixel buffers while the caller draws its
@@ -446,7 +451,9 @@ class World:
         renderer's): "camera" draws the clip's weather and light, "plain" its sun alone (the top
         view), "labels" depth and body ids alone (RGB black). `casters_drawn` (the GL
         renderer's): the ego hidden from its cameras but placed with its pose (`place_ego`) is
-        drawn too, where it stands: the top view of the cameras' state."""
+        drawn too, where it stands: the top view of the cameras' state. `depth_at` `(N, 2)`
+        (column, row of the image as drawn): the pixels whose depth the caller needs; the GL
+        renderer on a GPU reads the depth there alone (`Image.depth_samples`)."""
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -470,8 +477,15 @@ class World:
         drawn_width, drawn_height = self.drawn_size(width, height)
         if self.gl is not None:
             pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
-                                     far_m, look, casters_drawn, queued)  # fmt: skip
-            return lambda: Image(*pending.result())
+                                     far_m, look, casters_drawn, queued, depth_at)  # fmt: skip
+            if pending.gathered is None:
+                return lambda: Image(*pending.result())
+
+            def gathered() -> Image:
+                rgb, samples, mask = pending.result()
+                return Image(rgb, None, mask, samples)
+
+            return gathered
         image = self.draw(view, projection, drawn_width, drawn_height, segmentation, near_m, far_m,
                           look, casters_drawn)  # fmt: skip
         if not native and (drawn_width, drawn_height) != (width, height):
