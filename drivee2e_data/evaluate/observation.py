@@ -11,7 +11,7 @@ from drivee2e_data.evaluate.agent import LIDAR
 from drivee2e_data.evaluate.traffic import AgentPose
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sensors import lidar
-from drivee2e_data.sensors.camera import encode_jpeg, render, with_conditions
+from drivee2e_data.sensors.camera import NO_DEPTH, encode_jpeg, render, with_conditions
 from drivee2e_data.sensors.ego_state import se3
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
 from drivee2e_data.sim.vehicle import VehicleState
@@ -48,7 +48,7 @@ class SensorObserver:
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images = {}
         for camera in self.rig.cameras:
-            view = render(world, camera, ego_to_world, mask=False)
+            view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
             images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
         points = None
         if self.with_lidar:

@@ -15,7 +15,7 @@ from drivee2e_data.evaluate.episode import STEP_S, EpisodeResult
 from drivee2e_data.geometry import box_corners_2d, to_world_frame
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors import bev
-from drivee2e_data.sensors.camera import render, with_conditions
+from drivee2e_data.sensors.camera import NO_DEPTH, render, with_conditions
 from drivee2e_data.sensors.ego_state import se3, to_ego_frame
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
 from drivee2e_data.sim.gl_readback import contiguous_rgb
@@ -72,7 +72,8 @@ def write_video(
             placements = {p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in record.agents}
             world.show(placements, signals, frame)
             ego_to_world = se3(state.x_m, state.y_m, float(ground_z_m[frame]), state.yaw_rad)
-            front = with_conditions(world, render(world, camera, ego_to_world, mask=False), frame)
+            view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
+            front = with_conditions(world, view, frame)
             top = contiguous_rgb(bev.top_view(world, ego_to_world, TOP_PX, TOP_HALF_WIDTH_M))
             canvas = np.concatenate([cv2.resize(front, FRONT_SIZE), top], axis=1)
             image = np.ascontiguousarray(canvas[..., ::-1])  # OpenCV writes BGR

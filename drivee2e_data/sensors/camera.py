@@ -68,6 +68,11 @@ def camera_to_world(camera: Camera, ego_to_world: NDArray[np.float64]) -> NDArra
     return ego_to_world @ camera.sensor_to_ego
 
 
+# `render`'s `depth_at` for a view whose depth nobody reads (closed-loop observations, videos:
+# the GL renderer's shaders draw the weather themselves): none is read back on a GPU
+NO_DEPTH = np.zeros((0, 2), np.int32)
+
+
 def drawn_view(world: World, camera: Camera) -> DrawnView:
     """The camera with the size `world` draws its view at."""
     width, height = world.drawn_size(camera.width, camera.height)

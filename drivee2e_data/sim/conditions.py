@@ -65,7 +65,7 @@ def lighting(conditions: Conditions, origin: GeoOrigin) -> Lighting:
 
 def post_process(
     rgb: NDArray[np.uint8],
-    depth_m: NDArray[np.float32],
+    depth_m: NDArray[np.float32] | None,
     conditions: Conditions,
     light: Lighting,
     seed: int,
@@ -74,7 +74,7 @@ def post_process(
 ) -> NDArray[np.uint8]:
     """The weather and light of `conditions` applied to an image with its metric depth; with
     `shaded` (the GL renderer drew fog, wet surfaces and night light already), only the rain's
-    streaks and the low-light sensor noise.
+    streaks and the low-light sensor noise, and no depth is needed (None).
 
     By day the work stays in 8 bits with OpenCV's fused operations (a 1600x900 image takes a
     few milliseconds); night, with its gain, headlights and noise, goes through floats."""
@@ -82,6 +82,8 @@ def post_process(
 
     if shaded:
         return _sensor_effects(rgb, conditions, light, seed)
+    if depth_m is None:
+        raise ValueError("the weather of an unshaded image needs its depth image")
     visibility = VISIBILITY_M[conditions.weather]
     wet = conditions.weather in (Weather.RAIN, Weather.WET)
     if visibility is None and not wet and not light.night:
