@@ -1,7 +1,7 @@
 """What a host's cores do together on the collector's kind of CPU work, against one core alone:
 whether the CPUs of a larger host scale with their number.
 
-    python scripts/bench_host_cpu.py [--processes 1 16 32] [--seconds 10]
+    python scripts/bench_host_cpu.py [--processes 1 16 32] [--seconds 10] [--images 1]
 
 For each count N in `--processes`, N processes (one thread each) repeat one round of CPU work
 for `--seconds`: a 1600x900 camera-like image encoded to JPEG (OpenCV, quality 90, as
@@ -10,6 +10,9 @@ and 200 000 floats sorted (the LiDAR's and box visibility's array work). It prin
 second per process and for all together, and the speed-up against one process (the named
 reference): a perfectly scaling host gives N. A collection whose workers are bound by their
 CPUs (a 2-GPU host with a worker a core, docs/benchmarks.md) cannot scale past this.
+`--images K`: each process encodes K different images in turn (4.3 MB each), so that its work
+streams through memory as a collector's does instead of staying in cache: where the scaling is
+the same for 1 and 16, memory bandwidth is not what the cores share.
 """
 
 from __future__ import annotations
@@ -59,11 +62,12 @@ def one_round(image: np.ndarray, depth: np.ndarray, where: np.ndarray, values: n
     return len(encoded) + int(gathered[0] > 0) + int(ordered[0] > 0)
 
 
-def _worker(seconds: float, start_at: float, results) -> None:
+def _worker(seconds: float, start_at: float, results, images: int = 1) -> None:
     import cv2
 
     cv2.setNumThreads(1)
-    image = camera_like_image()
+    pictures = [camera_like_image(seed) for seed in range(images)]
+    image = pictures[0]
     rng = np.random.default_rng(os.getpid())
     depth = rng.random(IMAGE_PX, dtype=np.float32)
     where = rng.integers(0, depth.size, SAMPLES)
@@ -73,17 +77,18 @@ def _worker(seconds: float, start_at: float, results) -> None:
         time.sleep(0.001)
     rounds, began = 0, time.perf_counter()
     while time.perf_counter() - began < seconds:
-        one_round(image, depth, where, values)
+        one_round(pictures[rounds % images], depth, where, values)
         rounds += 1
     results.put(rounds / (time.perf_counter() - began))
 
 
-def rounds_per_second(processes: int, seconds: float) -> list[float]:
-    """Each of `processes` processes' rounds a second, all running at once."""
+def rounds_per_second(processes: int, seconds: float, images: int = 1) -> list[float]:
+    """Each of `processes` processes' rounds a second, all running at once, each going through
+    `images` images."""
     context = multiprocessing.get_context("fork")
     results = context.Queue()
     start_at = time.perf_counter() + 1.0 + 0.02 * processes  # after every process is ready
-    started = [context.Process(target=_worker, args=(seconds, start_at, results))
+    started = [context.Process(target=_worker, args=(seconds, start_at, results, images))
                for _ in range(processes)]  # fmt: skip
     for process in started:
         process.start()
@@ -97,13 +102,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--processes", type=int, nargs="+", default=[1, os.cpu_count() or 1])
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--images", type=int, default=1, help="different images a process encodes")
     args = parser.parse_args()
+    if args.images < 1:
+        parser.error(f"--images {args.images}: expected 1 or more")
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ.setdefault(name, "1")
-    print(f"{os.cpu_count()} CPUs; {args.seconds:g} s a count; rounds a second")
+    print(f"{os.cpu_count()} CPUs; {args.seconds:g} s a count; {args.images} image(s) a "
+          "process; rounds a second")  # fmt: skip
     reference = None
     for count in sorted({1, *args.processes}):  # one process first: the reference
-        rates = rounds_per_second(count, args.seconds)
+        rates = rounds_per_second(count, args.seconds, args.images)
         total = sum(rates)
         reference = reference or total
         print(f"  {count:>3} processes: {total / count:7.2f} each, {total:8.2f} in all, "

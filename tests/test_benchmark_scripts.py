@@ -142,7 +142,7 @@ def test_context_creation_is_summarised_by_median_longest_and_span() -> None:
 def test_host_cpu_bench_reports_each_count_against_one_process() -> None:
     result = subprocess.run(
         [sys.executable, str(REPOSITORY / "scripts" / "bench_host_cpu.py"),
-         "--processes", "2", "--seconds", "0.3"],
+         "--processes", "2", "--seconds", "0.3", "--images", "2"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
