@@ -116,6 +116,14 @@ def _front(world: World, frame: int, segmentation: bool = True):
     return front_view(world, frame, (320, 180), segmentation=segmentation, near_m=0.5)
 
 
+def _eye_at(world: World, frame: int) -> np.ndarray:
+    """The frame's scene set, the ego hidden at its logged place; a point 1.6 m above it."""
+    ego = world.scenario.ego
+    world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id)
+    world.set_time(frame)
+    return np.array([ego.x_m[frame], ego.y_m[frame], 1.6])
+
+
 def test_the_gl_world_draws_what_pybullets_egl_renderer_draws(site):
     """The same bodies where pybullet's own renderer puts them: body masks agree on 97% of the
     pixels or more (the rest are silhouettes), depths to 0.5% where both see the same body."""
@@ -158,10 +166,7 @@ def test_views_read_through_pixel_buffers_are_the_views_read_at_once(site):
     and a fourth through the buffers they freed, are byte for byte the views read at once."""
     intersection_map, scenario = site
     with World(intersection_map, scenario, renderer="gl") as world:
-        ego = world.scenario.ego
-        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), ego.track_id)
-        world.set_time(20)
-        eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
+        eye = _eye_at(world, 20)
 
         def toward(yaw: float, segmentation: bool, look: str = "camera"):
             target = eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0])
@@ -202,10 +207,7 @@ def test_depth_gathered_at_chosen_pixels_is_the_whole_depth_there(site):
     set reads nothing, and a larger set after a smaller grows the buffers."""
     intersection_map, scenario = site
     with World(intersection_map, scenario, renderer="gl") as world:
-        ego = world.scenario.ego
-        world.place_ego(float(ego.x_m[20]), float(ego.y_m[20]), ego.track_id)
-        world.set_time(20)
-        eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
+        eye = _eye_at(world, 20)
         target = eye + 10 * np.array([1.0, 0.0, 0.0])
         whole = world.render(eye, target, 320, 180, 40.0, near_m=0.5)
         assert not world.gl.gathers  # llvmpipe reads the whole image by itself
