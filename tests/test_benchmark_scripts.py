@@ -159,3 +159,59 @@ def test_host_cpu_bench_image_is_camera_sized_and_the_same_each_time() -> None:
     assert image.shape == (900, 1600, 3) and image.dtype == np.uint8
     assert np.array_equal(image, bench.camera_like_image())
     assert not np.array_equal(image, bench.camera_like_image(seed=1))
+
+
+def test_host_load_reads_the_cpus_shares_from_proc_stat(monkeypatch) -> None:
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    load = _script("host_load")
+    before = load.cpu_times("cpu  100 0 50 800 50 0 0 0 0 0\ncpu0 1 2 3 4\nintr 5\n")
+    after = load.cpu_times("cpu  400 100 100 1300 50 25 25 0 0 0\n")
+    # 1000 jiffies between: 400 user and nice, 100 system and interrupts, 500 idle, 0 steal
+    shares = load.shares(before, after)
+    assert (shares.user, shares.system, shares.idle, shares.steal) == (0.4, 0.1, 0.5, 0.0)
+    assert load.shares(after, after) == load.CpuShares(0.0, 0.0, 0.0, 0.0)
+    start = load.CpuShares(0.1, 0.05, 0.85, 0.0)
+    middle = load.CpuShares(0.95, 0.03, 0.02, 0.0)
+    end = load.CpuShares(0.3, 0.1, 0.6, 0.0)
+    assert load.busy_middle([start, middle, end, middle]) == [middle, middle]
+    with pytest.raises(ValueError, match="no 'cpu' line"):
+        load.cpu_times("intr 5\n")
+
+
+def test_host_load_runs_the_command_and_exits_with_its_status() -> None:
+    command = [sys.executable, str(REPOSITORY / "scripts" / "host_load.py"), "--interval", "0.2",
+               "--", sys.executable, "-c", "import sys, time; time.sleep(0.5); sys.exit(3)"]  # fmt: skip
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPOSITORY / "scripts")
+    assert result.returncode == 3, result.stderr
+    assert "exit 3" in result.stdout and "CPUs, busy middle: user" in result.stdout
+
+
+def test_spy_stages_counts_samples_by_stage_and_the_drivers_share(
+    tmp_path: Path, monkeypatch
+) -> None:
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    spy = _script("spy_stages")
+    capture = "capture_frames (collect/job.py:211);SensorSuite.capture (sensors/suite.py:202)"
+    read = f"{capture};render (sensors/camera.py:99);Framebuffer.read_into (moderngl/m.py:409)"
+    lidar = f"{capture};depth_sweep (sensors/lidar_depth.py:199)"
+    feeder = "Thread.run (threading.py:1012);Queue._feed (multiprocessing/queues.py:231)"
+    raw = tmp_path / "worker.txt"
+    raw.write_text(
+        f"{read};0x7f64 (libnvidia-eglcore.so.580) 6\n"
+        f"{read};0x7f65 ([vdso]) 2\n"
+        f"{capture};encode_jpeg (sensors/camera.py:150);0x7f66 (cv2/cv2.abi3.so) 4\n"
+        f"{lidar};_sample (sensors/lidar_depth.py:240) 8\n"
+        f"{feeder};Condition.wait (threading.py:327) 30\n"
+    )
+    samples = spy.read_samples([raw])
+    total, stages = spy.shares(samples)
+    # the feeder thread's 30 left out; cameras 8 of 20, all of them in the driver or its clock
+    assert total == 20
+    assert stages == {"cameras drawn and read": (8, 8), "lidar": (8, 0), "jpeg": (4, 0)}
+    functions = spy.innermost_python(samples)
+    assert functions["Framebuffer.read_into (m.py)"] == 8
+    assert functions["_sample (lidar_depth.py)"] == 8
+    assert functions["encode_jpeg (camera.py)"] == 4
+    raw.write_text("no count here\n")
+    with pytest.raises(SystemExit, match=r"worker\.txt line 1: expected"):
+        spy.read_samples([raw])
