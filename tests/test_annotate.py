@@ -113,6 +113,20 @@ def test_points_in_a_rotated_box():
     assert points_in_box(np.concatenate([inside, outside]), corners) == 2
 
 
+def test_a_sweeps_returns_are_grouped_by_the_bodies_asked_for():
+    """Box point counts take each agent's returns (`suite._returns_by_body`): the indices of
+    its returns in sweep order, for the bodies asked for that have any, and nothing else."""
+    from drivee2e_data.sensors.suite import _returns_by_body
+
+    hit_body = np.array([3, 1, 7, 3, 2, 7, 0, 3], np.int32)
+    grouped = _returns_by_body(hit_body, [7, 3, 9])
+    assert set(grouped) == {3, 7}  # 9 has no return; 0, 1 and 2 were not asked for
+    assert grouped[3].tolist() == [0, 3, 7] and grouped[7].tolist() == [2, 5]
+    assert _returns_by_body(hit_body, []) == {}
+    assert _returns_by_body(np.zeros(0, np.int32), [3]) == {}
+    assert _returns_by_body(hit_body, [12]) == {}  # an id beyond any the sweep hit
+
+
 def test_jpeg_round_trip_is_close():
     import cv2
 

@@ -308,10 +308,7 @@ class SensorSuite:
         world = self.world
         world_to_ego = np.linalg.inv(ego_to_world)
         ego_yaw = float(self.motion.yaw_rad[frame])
-        order = np.argsort(sweep.body, kind="stable")
-        bodies, starts = np.unique(sweep.body[order], return_index=True)
-        ends = np.append(starts[1:], len(order))
-        hits = {int(b): order[a:e] for b, a, e in zip(bodies, starts, ends, strict=True)}
+        hits = _returns_by_body(sweep.body, [body for _, body, _ in annotated])
         radar_counts: dict[str, int] = {}
         for result in returns.values():
             for track_id in result.track_ids:
@@ -363,6 +360,22 @@ class SensorSuite:
                 )
             )
         return tuple(boxes)
+
+
+def _returns_by_body(hit_body: NDArray[np.int32], bodies: list[int]) -> dict[int, NDArray[np.intp]]:
+    """The indices of the sweep's returns on each of `bodies` that has any, in sweep order.
+    Only those returns are sorted: the road's and the buildings' (most of a sweep) are not."""
+    if not bodies or not len(hit_body):
+        return {}
+    wanted = np.zeros(max(int(hit_body.max()), *bodies) + 1, dtype=bool)
+    wanted[bodies] = True  # body ids, the sweep's as well as these, are >= 0
+    chosen = np.flatnonzero(wanted[hit_body])
+    if not len(chosen):
+        return {}
+    order = chosen[np.argsort(hit_body[chosen], kind="stable")]
+    found, starts = np.unique(hit_body[order], return_index=True)
+    ends = np.append(starts[1:], len(order))
+    return {int(b): order[a:e] for b, a, e in zip(found, starts, ends, strict=True)}
 
 
 # a box counts its model's returns within this much of its faces: a steered front wheel pokes a
