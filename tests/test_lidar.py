@@ -185,3 +185,17 @@ def test_depth_lidar_edges_take_the_side_the_beam_falls_on_and_cast_only_at_agen
     assert not cast.any()  # the twin's own edges need no ray
     _, _, cast = _sample(depth, agent_mask, samples, surface, agent)
     assert cast.tolist() == [False, True, True, True]  # every block touching the agent
+
+
+def test_paint_codes_are_read_by_cell_and_none_off_the_raster():
+    """A 2 x 3 raster of 0.5 m cells from (10, 20): each point reads its cell's code, row by y
+    and column by x; a point just outside any edge reads 0."""
+    from drivee2e_data.sim.twin import PaintRaster
+
+    codes = np.array([[1, 2, 3], [4, 5, 6]], np.uint8)
+    raster = PaintRaster(np.array([10.0, 20.0]), 0.5, codes)
+    inside = np.array([[10.1, 20.1], [11.4, 20.2], [10.6, 20.9], [11.49, 20.99]])
+    assert raster.kind_codes(inside).tolist() == [1, 3, 5, 6]
+    outside = np.array([[9.99, 20.1], [11.5, 20.1], [10.1, 19.99], [10.1, 21.0]])
+    assert raster.kind_codes(outside).tolist() == [0, 0, 0, 0]
+    assert raster.kind_codes(np.zeros((0, 2))).tolist() == []
