@@ -308,7 +308,8 @@ class SensorSuite:
         world = self.world
         world_to_ego = np.linalg.inv(ego_to_world)
         ego_yaw = float(self.motion.yaw_rad[frame])
-        hits = _returns_by_body(sweep.body, [body for _, body, _ in annotated])
+        bodies = [body for _, body, _ in annotated]
+        hits = _returns_by_body(sweep.body, bodies)
         radar_counts: dict[str, int] = {}
         for result in returns.values():
             for track_id in result.track_ids:
@@ -316,7 +317,6 @@ class SensorSuite:
         # (cameras, boxes): each view tests all its boxes at once
         by_view = np.zeros((len(views), len(annotated)))
         if annotated:
-            bodies = [body for _, body, _ in annotated]
             all_corners = np.stack([corners for _, _, corners in annotated])
             for k, view in enumerate(views):
                 by_view[k] = annotate.visible_shares(
