@@ -178,13 +178,43 @@ def test_depth_lidar_edges_take_the_side_the_beam_falls_on_and_cast_only_at_agen
         nearest=np.array([0, 0, 1, 1]),
         along=np.ones(4),
     )
-    got, body, cast = _sample(depth, mask, samples, surface, agent)
+    got, body, reach = _sample(depth, mask, samples, surface, agent)
     assert got[0] == pytest.approx(1 / (0.5 / 10 + 0.5 / 12))  # one surface: as before
     assert got[1] == pytest.approx(12.0) and body[1] == 4  # the wall's side of the edge
     assert got[2] == pytest.approx(5.0) and body[2] == 5  # the tree's side
-    assert not cast.any()  # the twin's own edges need no ray
-    _, _, cast = _sample(depth, agent_mask, samples, surface, agent)
-    assert cast.tolist() == [False, True, True, True]  # every block touching the agent
+    assert np.isnan(reach).all()  # the twin's own edges need no ray
+    got, body, reach = _sample(depth, agent_mask, samples, surface, agent)
+    # every block touching the agent is cast as far as the agent's pixel (5 m) ...
+    assert np.isnan(reach[0]) and reach[1:].tolist() == [5.0, 5.0, 5.0]
+    # ... and takes what lies behind the agent's pixel where the ray hits nothing that far: the
+    # wall by the wall's side, the tree (its upper pixel) by the tree's
+    assert got[1] == pytest.approx(12.0) and body[1] == 4
+    assert got[3] == pytest.approx(5.0) and body[3] == 5
+
+
+def test_depth_lidar_casts_a_beam_between_agents_alone_all_the_way():
+    """A beam whose four pixels show two agents has no surface behind to fall back on: its
+    depth is unknown and it is marked to be cast the whole range; its reach is the farther
+    agent's depth."""
+    from types import SimpleNamespace
+
+    from drivee2e_data.sensors import lidar_depth
+
+    depth = np.array([[7.0, 9.0], [7.0, 9.0]], np.float32)
+    mask = np.array([[6, 7], [6, 7]], np.int32)
+    world = SimpleNamespace(bodies={"car": 6, "bus": 7}, twin=SimpleNamespace(segmentation={}))
+    surface = lidar_depth._surfaces(world)
+    agent = lidar_depth._agents(world, len(surface))
+    samples = lidar_depth._Samples(
+        beams=np.arange(1),
+        corners=np.array([[0, 1, 2, 3]]).T,
+        weights=np.array([[0.25, 0.25, 0.25, 0.25]]).T,
+        nearest=np.array([0]),
+        along=np.ones(1),
+    )
+    got, body, reach = lidar_depth._sample(depth, mask, samples, surface, agent)
+    assert np.isnan(got[0]) and body[0] == lidar_depth.CAST_THROUGH
+    assert reach[0] == pytest.approx(9.0)
 
 
 def test_paint_codes_are_read_by_cell_and_none_off_the_raster():

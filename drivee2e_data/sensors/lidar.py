@@ -94,15 +94,19 @@ def sweep(
 
 
 def cast(
-    client: int, origin: NDArray[np.float64], world_directions: NDArray[np.float64], range_m: float
+    client: int,
+    origin: NDArray[np.float64],
+    world_directions: NDArray[np.float64],
+    range_m: float | NDArray[np.float64],
 ) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
     """Body hit (-1 for none) and range (m) of rays from `origin` along `world_directions`
-    `(N, 3)`, up to `range_m`."""
+    `(N, 3)`, up to `range_m` (one for all, or `(N,)`: each ray's own)."""
     import pybullet
 
-    ends = origin + range_m * world_directions
+    range_m = np.asarray(range_m, dtype=np.float64)
+    ends = origin + range_m[..., None] * world_directions
     # numpy arrays go in as they are: converting 115,200 rays to lists costs a fifth of a sweep
-    starts = np.repeat(origin[None], MAX_RAYS_PER_BATCH, axis=0)
+    starts = np.repeat(origin[None], min(MAX_RAYS_PER_BATCH, len(world_directions)), axis=0)
     hits = []
     for start in range(0, len(world_directions), MAX_RAYS_PER_BATCH):
         stop = min(start + MAX_RAYS_PER_BATCH, len(world_directions))
