@@ -8,14 +8,15 @@ interpolation of the four neighbours' inverse depth when all four show the same 
 on flat surfaces; the road and its markings count as one). Where they show different surfaces (a
 silhouette, about 5% of the beams) and one of them is an agent, the beam is cast as a ray: a
 nearest-pixel guess there moves a box's outline by up to half a pixel, and a box top lying along
-a beam ring then gains or loses a whole row of points. Such a ray goes a little beyond the
-agent's pixels only; one that hits nothing that far takes the surface the image shows behind the
-agent (a ray on to the ground behind cost Bullet twice the rest of the ray). At the twin's own silhouettes (a tree
-before a wall, a kerb, about nine in ten of them) the beam takes the surface that carries most
-of its bilinear weight, interpolated over that surface's pixels: no box counts those points,
-and the side of the edge is then off by at most half a pixel (a tenth of a degree, within a
-real beam's divergence). It sees what the cameras see: agents' visual shapes, which are their collision
-shapes too (`sim/actors.py`), and paint, whose surface class gives the intensity directly.
+a beam ring then gains or loses a whole row of points. Such a ray goes only a little beyond
+the agent's pixels; one that hits nothing that far takes the surface the image shows behind the
+agent (a ray on to the ground there cost Bullet about twice one that ends at the agent). At the
+twin's own silhouettes (a tree before a wall, a kerb, about nine in ten of them) the beam takes
+the surface that carries most of its bilinear weight, interpolated over that surface's pixels:
+no box counts those points, and the side of the edge is then off by at most half a pixel (a
+tenth of a degree, within a real beam's divergence). It sees what the cameras see: agents'
+visual shapes, which are their collision shapes too (`sim/actors.py`), and paint, whose surface
+class gives the intensity directly.
 `sensors/lidar.py` (ray casting) stays the reference; `tests/test_lidar.py` checks they agree.
 """
 
@@ -265,8 +266,8 @@ def _sample(
     Where one of the four shows an agent (`agent`, indexed alike) the beam is to be cast, up to
     `AGENT_REACH` beyond the farthest of its agent pixels; the depth and body given for it are
     then those of the surface behind (the weightiest of its pixels that show no agent), which
-    it takes if the ray hits nothing that far: a ray all the way through costs Bullet three
-    times as much (the ground far behind), for a background the image already shows. A beam
+    it takes if the ray hits nothing that far: a ray all the way through costs Bullet about
+    twice as much (the ground far behind), for a background the image already shows. A beam
     with no weight on pixels without agents has NaN depth and body `CAST_THROUGH`: cast it
     all the way.
     """
