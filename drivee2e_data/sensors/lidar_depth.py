@@ -290,7 +290,7 @@ def _sample(
         # each corner's surface's share of the weight; ties go to the nearer corner's
         share = (alike * edge_weights[None]).sum(axis=1) + 1e-6 * edge_weights
         winner = surfaces[np.argmax(share, axis=0), np.arange(len(edges))]
-        on = np.where((surfaces == winner) & ~at_agent, edge_weights, 0.0)
+        on = np.where(surfaces == winner, edge_weights, 0.0)  # agents' pixels: 0 already
         with np.errstate(divide="ignore", invalid="ignore"):
             depth[edges] = on.sum(axis=0) / (on / corner_depths[:, edges]).sum(axis=0)
         body[edges] = corner_bodies[np.argmax(on, axis=0), edges]
