@@ -177,6 +177,8 @@ def _plan(
             start, stop = header["start"], header["stop"]
             if stop > frames or any(start < b and a < stop for a, b in kept):
                 segments.discard(path)  # made for a longer --max-frames, or overlapping: redone
+            elif "head" not in header and not segments.intact(path, header):
+                segments.discard(path)  # left with holes by a machine that stopped: redone
             else:
                 kept.append((start, stop))
         covered[scenario_id] = kept

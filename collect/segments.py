@@ -10,7 +10,12 @@ on nothing but the frame (`SensorSuite.capture` poses the world from the log).
 
 Segment files live in `logs/.segments/<scenario_id>/<start>-<stop>.segment`, written under a
 temporary name and renamed when whole, so a crash keeps every finished segment and a rerun
-collects only the frames no segment holds. A head is `<start>-<stop>.head` beside its sidecar
+collects only the frames no segment holds. A segment file is never flushed to disk: its bytes
+are copied into the log within seconds and the file deleted, so the disk need never write them
+(it wrote every one twice, and 32 workers ending together waited on it). A process that dies
+leaves the system's copy whole; only a machine that stops may leave a segment cut short or
+with holes, which a rerun finds by the CRC-32 of its frames (`intact`) and collects again. The
+log, heads included, is flushed before it is made final. A head is `<start>-<stop>.head` beside its sidecar
 `<start>-<stop>.head.json` (its header and the writer's state, `LogWriter.suspend`), written
 last: a head without one is unfinished. A segment records the options it was made with; one
 made with other options is dropped.
@@ -22,7 +27,7 @@ frames are known only at its end.
 File layout: `MAGIC`, then per frame its number, time and chunks (each its length and bytes: a
 chunk record and its message indexes, as they go into the log), then the JSON header
 (scenario, first frame and the one after the last, options, the log's collection and label
-records), its length and `END`.
+records, the CRC-32 of the bytes from `MAGIC`'s end to the header), its length and `END`.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import shutil
 import struct
 import threading
 import time
+import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,7 +61,6 @@ from drivee2e_data.collect.job import (
 )
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.logs.chunks import read_chunk
-from drivee2e_data.logs.writeback import Writeback
 from drivee2e_data.logs.writer import EncodedFrame, FrameEncoder, LogWriter, label_kinds
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
@@ -66,7 +71,8 @@ SUFFIX = ".segment"
 TEMPORARY_SUFFIX = ".segment-tmp"
 HEAD_SUFFIX = ".head"  # a clip's first segment: its log's head (`_write_head`)
 SIDECAR_SUFFIX = ".json"  # beside a head: its header and the log writer's state
-MAGIC, END = b"DE2ESEG2", b"END!"  # 2: chunks; 1 (raw messages) is collected again
+# 3: its frames' CRC-32 in the header; 2 (flushed, no CRC) and 1 (raw messages) are collected again
+MAGIC, END = b"DE2ESEG3", b"END!"
 # a unit's fixed cost is setting up its clip's world (0.4-1 s here, 1.9 s on a loaded H100
 # host, docs/benchmarks.md) against 0.1-0.5 s a sensor frame per worker: no worker's share of a
 # set is made shorter than this many sensor frames (at `--sensor-hz 2`, five times the frames)
@@ -78,6 +84,7 @@ MIN_PIECE_SENSOR_FRAMES = 5
 _FRAME = struct.Struct("<IqI")  # frame, t_ns, chunks
 _CHUNK = struct.Struct("<Q")  # a chunk's bytes
 _TRAILER = struct.Struct("<I4s")  # the header's bytes (it comes just before), END
+_CHECK_BLOCK = 1 << 22  # bytes read at a time by `intact`
 
 
 @dataclass(frozen=True)
@@ -300,11 +307,20 @@ def remove_temporary(root: Path) -> None:
 # ---------------------------------------------------------------------------- the file format
 
 
-def _write_frame(stream: BinaryIO, encoded: EncodedFrame) -> None:
-    stream.write(_FRAME.pack(encoded.frame, encoded.t_ns, len(encoded.chunks)))
+def _write_frame(stream: BinaryIO, encoded: EncodedFrame, crc: int) -> int:
+    """Write one frame's record; returns `crc` (the CRC-32 of the frames before) carried on
+    over its bytes."""
+    for data in _frame_parts(encoded):
+        stream.write(data)
+        crc = zlib.crc32(data, crc)
+    return crc
+
+
+def _frame_parts(encoded: EncodedFrame) -> Iterator[bytes]:
+    yield _FRAME.pack(encoded.frame, encoded.t_ns, len(encoded.chunks))
     for chunk in encoded.chunks:
-        stream.write(_CHUNK.pack(len(chunk.data)))
-        stream.write(chunk.data)
+        yield _CHUNK.pack(len(chunk.data))
+        yield chunk.data
 
 
 def _read_exactly(stream: BinaryIO, size: int, path: Path) -> bytes:
@@ -330,6 +346,24 @@ def read_header(path: Path) -> dict:
             raise DriveE2EError(f"{path}: segment file has no end marker")
         stream.seek(end - _TRAILER.size - size)
         return json.loads(stream.read(size))
+
+
+def intact(path: Path, header: dict) -> bool:
+    """Whether a segment file's frames are the bytes it was written with (the CRC-32 its
+    `header` records): false for one a stopped machine left with holes or stale blocks."""
+    with open(path, "rb") as stream:
+        stream.seek(-_TRAILER.size, os.SEEK_END)
+        size, _ = _TRAILER.unpack(stream.read(_TRAILER.size))
+        left = stream.tell() - _TRAILER.size - size - len(MAGIC)
+        stream.seek(len(MAGIC))
+        crc = 0
+        while left > 0:
+            block = stream.read(min(left, _CHECK_BLOCK))
+            if not block:
+                return False
+            crc = zlib.crc32(block, crc)
+            left -= len(block)
+    return crc == header.get("crc32")
 
 
 def read_frames(path: Path, header: dict | None = None) -> Iterator[EncodedFrame]:
@@ -435,21 +469,20 @@ def _write_segment(piece: _Piece) -> int:
         camera_label_kinds=label_kinds(setup.labels),
     )
     temporary = folder / f"{unit.name}.{os.getpid()}{TEMPORARY_SUFFIX}"
+    crc = 0
     try:
         with open(temporary, "wb") as stream:
             stream.write(MAGIC)
-            writeback = Writeback(stream)
 
             def write(frame) -> None:
-                _write_frame(stream, encoder.encode(frame))
-                writeback.written()
+                nonlocal crc
+                crc = _write_frame(stream, encoder.encode(frame), crc)
 
             count = piece.capture(write)
-            header["stop"] = unit.start + count
+            header["stop"], header["crc32"] = unit.start + count, crc
             data = json.dumps(header).encode()  # key order kept: the log's records keep theirs
             stream.write(data + _TRAILER.pack(len(data), END))
-            stream.flush()
-            os.fsync(stream.fileno())
+        # not flushed to disk (the module's docstring): copied into the log and deleted soon
         done = dataclasses.replace(unit, stop=header["stop"])
         os.replace(temporary, folder / f"{done.name}{SUFFIX}")
     finally:
@@ -488,9 +521,9 @@ def _write_head(piece: _Piece) -> int:
 class SegmentedLog:
     """A clip's log written from its head and segment files as they finish. `append` resumes
     the head (`LogWriter.resume`) and copies the finished segments that continue the log, in
-    frame order, onto it, flushed to disk; `finish` copies the rest, checks that frames 0 to
-    `frames - 1` are there once each and makes the log final (the head moved to the log's
-    name). A pool appends while its workers collect the clip's later frames, so the clip's end
+    frame order, onto it (the disk's writes started as it grows, `Writeback`, but not waited
+    for); `finish` copies the rest, checks that frames 0 to `frames - 1` are there once each,
+    flushes the log to disk and makes it final (the head moved to the log's name). A pool appends while its workers collect the clip's later frames, so the clip's end
     costs only what its last segments hold (the whole log had been copied after the run's last
     frame: 0.1-1 s a clip at 2 Hz on an H100 host, 2.6-2.9 s at 10 Hz). Calls from several
     threads take turns. Nothing is final before `finish`: a crash leaves the head with what was
@@ -523,10 +556,7 @@ class SegmentedLog:
             start = time.perf_counter()
             try:
                 self._prepared()  # read now, off the clip's end, even if nothing continues yet
-                copied = len(self._headers)
                 self._copy_ready()
-                if len(self._headers) > copied:
-                    self._writer.sync()  # type: ignore[union-attr]
             except Exception as error:  # reported by `finish`
                 self._failure = error
                 self._discard()

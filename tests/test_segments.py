@@ -253,6 +253,40 @@ def test_a_crashed_run_resumes_from_its_finished_segments(
     assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
 
 
+def test_a_segment_a_stopped_machine_left_with_holes_is_collected_again(
+    collected_root: Path, synthetic_root: Path, tmp_path: Path
+):
+    """Segment files are never flushed to disk (the module's docstring): one left with a run of
+    zeros among its frames, its trailer whole, fails the CRC-32 its header keeps, and the rerun
+    collects those frames again; the log equals one worker's."""
+    scenario_id = store.scenario_ids(synthetic_root)[0]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=LONG_CLIP_FRAMES)
+    for start, stop in ((0, 12), (12, 24), (24, 36)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+    folder = segments.segments_dir(root, scenario_id)
+    damaged, kept = folder / "000012-000024.segment", folder / "000024-000036.segment"
+    header = segments.read_header(damaged)
+    assert segments.intact(damaged, header) and segments.intact(kept, segments.read_header(kept))
+    data = bytearray(damaged.read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 4096] = bytes(4096)
+    damaged.write_bytes(bytes(data))
+    assert segments.read_header(damaged) == header  # its trailer reads as a whole file's
+    assert not segments.intact(damaged, header)
+    seen: list[int] = []
+
+    def progress(total: int, clips: int):  # type: ignore[no-untyped-def]
+        seen.append(total)
+        return None
+
+    summary = collect(root, options, workers=1, progress=progress)
+    assert seen == [12]  # frames 12-23 again; the head and frames 24-35 kept
+    assert [(r.status, r.frames) for r in summary.results] == [("collected", 12)]
+    alone = collected_root / "logs" / f"{scenario_id}.mcap"
+    assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
+
+
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_run_stopped_between_its_last_segment_and_the_log_writes_the_log_on_rerun(
     collected_root: Path, synthetic_root: Path, tmp_path: Path, workers: int

@@ -1,7 +1,8 @@
 """A growing file's bytes sent to the disk as they come, so that the fsync that makes it durable
 waits only on its last ones.
 
-A log or segment file is written for tens of seconds and fsynced once, at its end. The kernel
+A log or a log's head is written for tens of seconds and fsynced once, at its end (segment
+files, copied into their log and deleted within seconds, are never flushed). The kernel
 keeps what was written in memory until then (on a host with a lot of memory, its background
 writeback starts only past a share of it, gigabytes), so every worker of a pool that ends at
 once waits on its whole file: the run's end waited on the disk for all of them together.

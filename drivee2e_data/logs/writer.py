@@ -333,12 +333,6 @@ class LogWriter:
         self._file.close()
         os.replace(self.partial, self.path)
 
-    def sync(self) -> None:
-        """What was written so far, flushed to disk (the log is still partial): `finish` then
-        waits only on what came after."""
-        self._file.flush()
-        os.fdatasync(self._file.fileno())
-
     def suspend(self, head: Path) -> dict:
         """Stop with the log unfinished: what was written (the log's head: every record up to
         the last frame's chunks, no summary) flushed to disk and moved to `head`; returns the
