@@ -4,7 +4,14 @@ import numpy as np
 import pybullet
 import pytest
 
-from drivee2e_data.sensors.lidar import INTENSITY, beam_directions, ranges_per_beam, sweep
+from drivee2e_data.sensors.lidar import (
+    INTENSITY,
+    POINTS_PER_M,
+    beam_directions,
+    on_grid,
+    ranges_per_beam,
+    sweep,
+)
 from drivee2e_data.sensors.rig import default_rig, pose
 
 HEIGHT_M = 1.85  # the rig's LiDAR mount height
@@ -35,6 +42,15 @@ def test_beam_layout():
     assert ring.max() == 63 and np.rad2deg(np.arcsin(directions[0, 2])) == pytest.approx(10.0)
 
 
+def test_points_are_given_to_the_nearest_1024th_of_a_metre():
+    """The grid a real LiDAR's range steps stand for: 20.0004 m is 20 m; -1.2345 m is
+    -1264/1024 = -1.234375 m; 0.48 mm is 0 and 0.49 mm one step; exact in float32."""
+    assert POINTS_PER_M == 1024
+    grid = on_grid(np.array([[20.0004, -1.2345, 0.0], [84.9999, 0.00048, 0.00049]]))
+    assert grid.dtype == np.float32
+    assert grid.tolist() == [[20.0, -1.234375, 0.0], [85.0, 0.0, 1 / 1024]]
+
+
 def test_box_20m_ahead_and_ground_rings(scene):
     client, kinds, box_body = scene
     lidar = default_rig().lidar
@@ -44,6 +60,8 @@ def test_box_20m_ahead_and_ground_rings(scene):
     ahead = on_box & (np.abs(result.points_m[:, 1]) < 0.3)
     assert ahead.sum() > 10
     assert np.abs(result.points_m[ahead, 0] - 20.0).max() < 0.02  # +- 2 cm
+    steps = result.points_m.astype(np.float64) * POINTS_PER_M
+    assert np.array_equal(steps, np.rint(steps))  # every point on the grid
     ground = result.body != box_body
     elevations = default_rig().lidar.elevations_rad[result.ring[ground]]
     expected_range = HEIGHT_M / np.sin(-elevations)

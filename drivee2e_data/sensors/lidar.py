@@ -31,14 +31,29 @@ INTENSITY = {
     "obstacle": 0.6,
 }
 AGENT_INTENSITY = 0.5
+# points are given on a grid of 1/1024 m (under a millimetre) in the LiDAR frame, as a real
+# LiDAR gives its ranges in steps of 1 to 4 mm: a float32 at full precision holds digits below
+# any sensor's, which the log's compression cannot pack (a sweep's chunk to 0.44 of its size; on
+# the grid 0.30, in two thirds of the time: docs/benchmarks.md, "twenty-fourth session")
+POINTS_PER_M = 1024
 
 
 @dataclass(frozen=True)
 class LidarSweep:
-    points_m: NDArray[np.float32]  # (N, 3) in the LiDAR frame
+    points_m: NDArray[np.float32]  # (N, 3) in the LiDAR frame, on its grid (`on_grid`)
     intensity: NDArray[np.float32]  # (N,) 0..1
     ring: NDArray[np.uint8]  # (N,) beam index, 0 the highest
     body: NDArray[np.int32]  # (N,) pybullet body hit (to count points per box)
+
+
+def on_grid(points_m: NDArray[np.float64]) -> NDArray[np.float32]:
+    """`(N, 3)` points rounded to the nearest multiple of 1 / `POINTS_PER_M` metres, as float32
+    (exact: such multiples within 16 km fit float32's 24-bit mantissa)."""
+    scaled = points_m * float(POINTS_PER_M)
+    np.rint(scaled, out=scaled)
+    grid = scaled.astype(np.float32)
+    grid *= np.float32(1.0 / POINTS_PER_M)  # a power of two: exact
+    return grid
 
 
 def beam_directions(lidar: Lidar) -> tuple[NDArray[np.float64], NDArray[np.uint8]]:
@@ -86,7 +101,7 @@ def sweep(
     body, distance = body[hit], distance[hit]
     hit_xy = origin[:2] + world_directions[hit, :2] * distance[:, None]
     return LidarSweep(
-        points_m=(directions[hit] * distance[:, None]).astype(np.float32),
+        points_m=on_grid(directions[hit] * distance[:, None]),
         intensity=intensities(kinds, body, hit_xy, paint),
         ring=ring[hit],
         body=body,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sensors.lidar import LidarSweep, beam_directions, cast, intensities
+from drivee2e_data.sensors.lidar import LidarSweep, beam_directions, cast, intensities, on_grid
 from drivee2e_data.sensors.rig import Lidar
 from drivee2e_data.sim.twin import PaintRaster
 
@@ -220,7 +220,7 @@ def depth_sweep(
     hit_distance = distance[hit, None]
     hit_xy = origin[:2] + np.take(world_directions, hit, axis=0)[:, :2] * hit_distance
     return LidarSweep(
-        points_m=(np.take(directions, hit, axis=0) * hit_distance).astype(np.float32),
+        points_m=on_grid(np.take(directions, hit, axis=0) * hit_distance),
         intensity=intensities(world.twin.segmentation, hit_body, hit_xy, paint),
         ring=layout.ring[hit],
         body=hit_body,
