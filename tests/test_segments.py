@@ -253,6 +253,34 @@ def test_a_crashed_run_resumes_from_its_finished_segments(
     assert not (root / "logs" / segments.SEGMENTS_FOLDER).exists()
 
 
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="names open files through /proc")
+def test_segment_files_are_never_flushed_to_disk_but_heads_and_logs_are(
+    synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """A segment is copied into its log and deleted within seconds: its bytes are never flushed
+    (fsync), where the head (the log's own first frames) and the finished log are."""
+    import os
+
+    scenario_id = store.scenario_ids(synthetic_root)[1]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=6)
+    flushed: list[str] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        flushed.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    for start, stop in ((0, 3), (3, 6)):
+        assert segments.collect_segment(root, WorkUnit(scenario_id, start, stop), options).frames
+    assert segments.merge_clip(root, scenario_id, options, 6).status == "collected"
+    names = [Path(path).name for path in flushed]
+    assert not [name for name in names if ".segment" in name and ".head" not in name]
+    assert any(name.startswith(".") and name.endswith(".partial") for name in names)  # the head
+    assert any(".head.json" in name for name in names)  # its sidecar
+
+
 def test_a_segment_a_stopped_machine_left_with_holes_is_collected_again(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
