@@ -239,12 +239,20 @@ def uncovered(frames: int, ranges: list[tuple[int, int]]) -> list[tuple[int, int
     return [(a, b) for a, b in gaps if b > a]
 
 
+# what a captured frame's bytes are, by the code that captures them: raised with each change
+# that makes them other bytes, so that heads and segments an earlier version left are collected
+# again rather than joined with this version's frames into one log. 2: LiDAR points on a grid
+# (`sensors.lidar.on_grid`, 2026-11-27)
+FRAME_BYTES_VERSION = 2
+
+
 def fingerprint(options: CollectOptions) -> str:
     """What a segment's frames depend on: the options (but how many frames: a frame is the same
     whatever the clip's length collected) and the version that made them."""
     fields = dataclasses.asdict(options)
     fields.pop("max_frames")
-    return json.dumps({"version": __version__, **fields}, sort_keys=True, default=list)
+    made_by = {"version": __version__, "frame_bytes": FRAME_BYTES_VERSION}
+    return json.dumps({**made_by, **fields}, sort_keys=True, default=list)
 
 
 def segments_dir(root: Path, scenario_id: str) -> Path:

@@ -281,6 +281,24 @@ def test_segment_files_are_never_flushed_to_disk_but_heads_and_logs_are(
     assert any(".head.json" in name for name in names)  # its sidecar
 
 
+def test_heads_and_segments_of_frames_made_other_bytes_by_an_earlier_version_are_dropped(
+    synthetic_root: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """A head and a segment captured by code whose frames were other bytes (an earlier
+    `FRAME_BYTES_VERSION`) are not joined with this version's frames: the next run drops them."""
+    scenario_id = store.scenario_ids(synthetic_root)[1]
+    root = copy_clips(synthetic_root, tmp_path / "data", [scenario_id])
+    options = dataclasses.replace(_cli_options(), max_frames=6)
+    with monkeypatch.context() as earlier:
+        earlier.setattr(segments, "FRAME_BYTES_VERSION", segments.FRAME_BYTES_VERSION - 1)
+        for start, stop in ((0, 3), (3, 6)):
+            unit = WorkUnit(scenario_id, start, stop)
+            assert segments.collect_segment(root, unit, options).frames
+        assert len(segments.finished_segments(root, scenario_id, options)) == 2
+    assert segments.finished_segments(root, scenario_id, options) == []
+    assert not list(segments.segments_dir(root, scenario_id).iterdir())
+
+
 def test_a_segment_a_stopped_machine_left_with_holes_is_collected_again(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
