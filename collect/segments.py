@@ -17,8 +17,9 @@ leaves the system's copy whole; only a machine that stops may leave a segment cu
 with holes, which a rerun finds by the CRC-32 of its frames (`intact`) and collects again. The
 log, heads included, is flushed before it is made final. A head is `<start>-<stop>.head` beside its sidecar
 `<start>-<stop>.head.json` (its header and the writer's state, `LogWriter.suspend`), written
-last: a head without one is unfinished. A segment records the options it was made with; one
-made with other options is dropped.
+last: a head without one is unfinished. A segment records the options it was made with and
+what its frames' bytes are (`FRAME_BYTES_VERSION`); one made with other options, or by code
+whose frames were other bytes, is dropped.
 
 A segment may end before the frames it was planned for: a worker that ran out of work takes
 the rest of a running segment (`runner._run_pool` moves its `stop`, `claim` below), so its
