@@ -15,9 +15,10 @@ are copied into the log within seconds and the file deleted, so the disk need ne
 (it wrote every one twice, and 32 workers ending together waited on it). A process that dies
 leaves the system's copy whole; only a machine that stops may leave a segment cut short or
 with holes, which a rerun finds by the CRC-32 of its frames (`intact`) and collects again. The
-log, heads included, is flushed before it is made final. A head is `<start>-<stop>.head` beside its sidecar
-`<start>-<stop>.head.json` (its header and the writer's state, `LogWriter.suspend`), written
-last: a head without one is unfinished. A segment records the options it was made with and
+log, heads included, is flushed before it is made final.
+
+A head is `<start>-<stop>.head` beside its sidecar `<start>-<stop>.head.json` (its header and
+the writer's state, `LogWriter.suspend`), written last: a head without one is unfinished. A segment records the options it was made with and
 what its frames' bytes are (`FRAME_BYTES_VERSION`); one made with other options, or by code
 whose frames were other bytes, is dropped.
 
