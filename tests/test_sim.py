@@ -413,6 +413,25 @@ def test_sensor_noise_is_seeded_whole_levels_of_sigma_six_and_differs_between_se
     assert not np.shares_memory(big, noise_pool())
 
 
+@pytest.mark.parametrize("shape", [(900, 1600, 3), (2000, 2000, 3)])  # from the pool; afresh
+def test_noise_added_as_its_rises_and_falls_is_the_saturating_add_of_its_levels(shape):
+    """`with_sensor_noise` adds the pool's rises, then takes away its falls (two uint8 passes):
+    the same bytes as adding the int8 levels with saturation, the input left as it was."""
+    import cv2
+
+    from drivee2e_data.sim.conditions import sensor_noise, with_sensor_noise
+
+    image = np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8)
+    image[0, :50] = 0  # saturates below and above
+    image[1, :50] = 255
+    before = image.copy()
+    noisy = with_sensor_noise(image, np.random.default_rng(5))
+    expected = cv2.add(image, sensor_noise(shape, np.random.default_rng(5)), dtype=cv2.CV_8U)
+    assert np.array_equal(noisy, expected)
+    assert np.array_equal(image, before)
+    assert (noisy[0, :50] < 20).all() and (noisy[1, :50] > 235).all()
+
+
 def test_night_noise_on_a_shaded_image_is_a_saturating_add_of_the_levels():
     from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
     from drivee2e_data.sim.conditions import Lighting, post_process, sensor_noise

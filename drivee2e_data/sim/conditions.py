@@ -199,6 +199,39 @@ def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np
     return noise_pool()[start : start + size].reshape(shape)
 
 
+@functools.cache
+def _noise_pool_parts() -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """The pool's levels as what they add and what they take away, each uint8 (one of the two
+    is 0 at every value): OpenCV adds and subtracts two uint8 images with saturation in one SIMD
+    pass each, where adding the int8 levels to a uint8 image converts both (two passes 0.4 ms
+    a 1600x900 camera against 2.2 here, the same bytes)."""
+    pool = noise_pool()
+    parts = (
+        np.maximum(pool, 0).astype(np.uint8),
+        np.maximum(-pool.astype(np.int16), 0).astype(np.uint8),
+    )
+    for part in parts:
+        part.flags.writeable = False
+    return parts
+
+
+def with_sensor_noise(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
+    """A new image: `image` (C-contiguous) plus `sensor_noise(image.shape, rng)` with
+    saturation, the bytes `cv2.add` of the int8 levels gives, as the pool's window of what the
+    levels add, then of what they take away (`_noise_pool_parts`)."""
+    import cv2
+
+    size = image.size
+    start = noise_offset(size, rng)
+    if start is None:  # larger than half the pool: drawn afresh, as `sensor_noise` draws them
+        noise = noise_levels(rng.standard_normal(image.shape, dtype=np.float32))
+        return cv2.add(image, noise, dtype=cv2.CV_8U)
+    up, down = (part[start : start + size].reshape(image.shape) for part in _noise_pool_parts())
+    noisy = cv2.add(image, up)
+    cv2.subtract(noisy, down, dst=noisy)
+    return noisy
+
+
 def _rain(image: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
     """Bright, slanted streaks blended over the image: OpenCV's `blendLinear` arithmetic (the
     same bytes), worked out only at the pixels the streaks touch, a few percent of the image
@@ -265,14 +298,10 @@ def _sensor_effects(
     rgb: NDArray[np.uint8], conditions: Conditions, light: Lighting, seed: int
 ) -> NDArray[np.uint8]:
     """What the camera adds over a shaded image: noise in low light, streaks in rain."""
-    import cv2
-
     rng = np.random.default_rng(seed)
     image = rgb
     if light.night:
-        image = contiguous_rgb(rgb)
-        noise = sensor_noise(image.shape, rng)
-        image = cv2.add(image, noise, dtype=cv2.CV_8U)  # saturating, in whole levels
+        image = with_sensor_noise(contiguous_rgb(rgb), rng)  # saturating, in whole levels
     if conditions.weather == Weather.RAIN:
         image = _rain(contiguous_rgb(image), rng)
     return image
