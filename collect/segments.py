@@ -18,9 +18,10 @@ with holes, which a rerun finds by the CRC-32 of its frames (`intact`) and colle
 log, heads included, is flushed before it is made final.
 
 A head is `<start>-<stop>.head` beside its sidecar `<start>-<stop>.head.json` (its header and
-the writer's state, `LogWriter.suspend`), written last: a head without one is unfinished. A segment records the options it was made with and
-what its frames' bytes are (`FRAME_BYTES_VERSION`); one made with other options, or by code
-whose frames were other bytes, is dropped.
+the writer's state, `LogWriter.suspend`), written last: a head without one is unfinished. A
+segment records the options it was made with and what its frames' bytes are
+(`FRAME_BYTES_VERSION`); one made with other options, or by code whose frames were other bytes,
+is dropped.
 
 A segment may end before the frames it was planned for: a worker that ran out of work takes
 the rest of a running segment (`runner._run_pool` moves its `stop`, `claim` below), so its
@@ -533,8 +534,9 @@ class SegmentedLog:
     the head (`LogWriter.resume`) and copies the finished segments that continue the log, in
     frame order, onto it (the disk's writes started as it grows, `Writeback`, but not waited
     for); `finish` copies the rest, checks that frames 0 to `frames - 1` are there once each,
-    flushes the log to disk and makes it final (the head moved to the log's name). A pool appends while its workers collect the clip's later frames, so the clip's end
-    costs only what its last segments hold (the whole log had been copied after the run's last
+    flushes the log to disk and makes it final (the head moved to the log's name). A pool
+    appends while its workers collect the clip's later frames, so the clip's end costs only
+    what its last segments hold (the whole log had been copied after the run's last
     frame: 0.1-1 s a clip at 2 Hz on an H100 host, 2.6-2.9 s at 10 Hz). Calls from several
     threads take turns. Nothing is final before `finish`: a crash leaves the head with what was
     appended (cut off when it is resumed again) and the segments, which the next run reuses.
