@@ -291,11 +291,12 @@ def _sample(
         share = (alike * edge_weights[None]).sum(axis=1) + 1e-6 * edge_weights
         winner = surfaces[np.argmax(share, axis=0), np.arange(len(edges))]
         on = np.where(surfaces == winner, edge_weights, 0.0)  # agents' pixels: 0 already
+        behind = on.sum(axis=0)  # the weight on the surface taken (0: agents' pixels alone)
         with np.errstate(divide="ignore", invalid="ignore"):
-            depth[edges] = on.sum(axis=0) / (on / corner_depths[:, edges]).sum(axis=0)
+            depth[edges] = behind / (on / corner_depths[:, edges]).sum(axis=0)
         body[edges] = corner_bodies[np.argmax(on, axis=0), edges]
         cast = at_agent.any(axis=0)
-        through = cast & (on.sum(axis=0) == 0)  # no weight on any surface behind
+        through = cast & (behind == 0)  # no weight on any surface behind
         depth[edges[through]] = np.nan
         body[edges[through]] = CAST_THROUGH
         agent_depths = np.where(at_agent, corner_depths[:, edges], 0.0)

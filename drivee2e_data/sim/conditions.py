@@ -195,8 +195,13 @@ def sensor_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np
     size = math.prod(shape)
     start = noise_offset(size, rng)
     if start is None:
-        return noise_levels(rng.standard_normal(shape, dtype=np.float32))
+        return _fresh_noise(shape, rng)
     return noise_pool()[start : start + size].reshape(shape)
+
+
+def _fresh_noise(shape: tuple[int, ...], rng: np.random.Generator) -> NDArray[np.int8]:
+    """Noise levels of `shape` drawn from `rng` (an image larger than half the pool)."""
+    return noise_levels(rng.standard_normal(shape, dtype=np.float32))
 
 
 @functools.cache
@@ -224,8 +229,7 @@ def with_sensor_noise(image: NDArray[np.uint8], rng: np.random.Generator) -> NDA
     size = image.size
     start = noise_offset(size, rng)
     if start is None:  # larger than half the pool: drawn afresh, as `sensor_noise` draws them
-        noise = noise_levels(rng.standard_normal(image.shape, dtype=np.float32))
-        return cv2.add(image, noise, dtype=cv2.CV_8U)
+        return cv2.add(image, _fresh_noise(image.shape, rng), dtype=cv2.CV_8U)
     up, down = (part[start : start + size].reshape(image.shape) for part in _noise_pool_parts())
     noisy = cv2.add(image, up)
     cv2.subtract(noisy, down, dst=noisy)
