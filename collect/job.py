@@ -26,7 +26,7 @@ from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
 from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, StateFrame, SuiteOptions
-from drivee2e_data.sim import reuse
+from drivee2e_data.sim import gl_renderer, reuse
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
@@ -102,6 +102,17 @@ _world: World | None = None  # this process's world, kept for the next clip on i
 def _close_world() -> None:
     if _world is not None:
         _world.close()
+
+
+def release_world() -> None:
+    """Close this process's world and give its GL context back to the driver
+    (`gl_renderer.release_context`), where a pool worker has nothing left to do before the run
+    ends; a later clip sets a world up and makes a context again."""
+    global _world
+    if _world is not None:
+        _world.close()
+        _world = None
+    gl_renderer.release_context()
 
 
 def remove_world_files() -> None:

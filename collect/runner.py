@@ -48,6 +48,7 @@ from drivee2e_data.collect.job import (
     collect_clip,
     log_path,
     planned_frames,
+    release_world,
     remove_world_files,
 )
 from drivee2e_data.collect.preload import start_worker_server, worker_context
@@ -423,6 +424,10 @@ _frames_done: multiprocessing.Queue | None = None
 _units_done: multiprocessing.Queue | None = None  # (slot, JobResult) as each unit ends
 _setups_done: multiprocessing.Queue | None = None  # (slot, pid, seconds) as each world is set up
 _claims: Any = None  # the pool's `_Claims.shared`
+_given_back: Any = None  # (count, all given back): `_give_back`'s
+# how long a worker that gave its context back waits for the others at most: they take the
+# run's last frames (a few seconds); past this the pool lost a worker and is stopped anyway
+GIVE_BACK_WAIT_S = 600.0
 
 
 # GL contexts made at once per GPU as a pool starts. NVIDIA's driver makes them through a step
@@ -459,9 +464,11 @@ def _init_worker(
     plans: str,
     make_context: bool = False,
     context_slots: Any = None,
+    given_back: Any = None,
 ) -> None:
-    global _frames_done, _units_done, _setups_done, _claims
+    global _frames_done, _units_done, _setups_done, _claims, _given_back
     _frames_done, _units_done, _setups_done, _claims = frames_done, units_done, setups_done, claims
+    _given_back = given_back
     reuse.share_in(Path(plans))  # what any worker planned or wrote is there for all
     with started.get_lock():  # this worker's number, for its GPU
         worker, started.value = started.value, started.value + 1
@@ -513,6 +520,25 @@ def _pooled_job(
             _units_done.put((slot, result))
         results.append(result)
     return results
+
+
+def _give_back(workers: int) -> list[JobResult]:
+    """A pool worker's last job, handed out once nothing is left to hand out or split (the
+    run's tail): its world closed and its GL context given back to the driver
+    (`job.release_world`), then held here until all `workers` have done the same, so that each
+    worker takes one of these jobs and none takes two. NVIDIA's driver frees contexts one
+    process at a time (32 took 0.6 s as the workers exited after the last frame, on a 2-H100
+    host): freed beside the last workers' frames instead (docs/benchmarks.md, twenty-fifth
+    session). A worker given a job after this makes a new context."""
+    release_world()
+    given_back, everyone = _given_back
+    with given_back.get_lock():
+        given_back.value += 1
+        if given_back.value >= workers:
+            everyone.set()
+    # bounded: a pool short of workers (one died) is broken and stopped anyway
+    everyone.wait(timeout=GIVE_BACK_WAIT_S)
+    return []
 
 
 def _report_setup(setups_done: multiprocessing.Queue, slot: int, seconds: float) -> None:
@@ -610,8 +636,10 @@ def _run_pool(
     units = sum(len(job) for job in jobs)
     claims = _Claims(units + SPLITS_PER_WORKER * workers, context)
     plans = mesh_folder()  # the run's twin plans and shape files (`reuse`), removed with the pool
+    given_back = (context.Value("i", 0), context.Event())  # `_give_back`'s count, and all done
     initargs = (frames_done, units_done, setups_done, started, gpus, claims.shared, str(plans),
-                context_at_start(options), context.Semaphore(contexts_at_once(gpus)))  # fmt: skip
+                context_at_start(options), context.Semaphore(contexts_at_once(gpus)),
+                given_back)  # fmt: skip
     with (
         _removed_after(plans),
         worker_pool(workers, _init_worker, initargs, context) as pool,
@@ -703,7 +731,12 @@ def _run_pool(
             elif tracker.appends(unit, result):
                 writers.submit(tracker.append, unit.scenario_id)  # never raises
 
+        tail = False  # nothing left to hand out or split: the workers give their contexts back
+
         def hand_out() -> None:
+            nonlocal tail
+            if tail:
+                return
             busy = sum(not isinstance(j, str) for j in running.values())
             while waiting and busy < 2 * workers:
                 submit(waiting.popleft())
@@ -712,6 +745,10 @@ def _run_pool(
                 idle_maps.popleft()  # those workers took queued jobs
             while not waiting and busy < workers and split_one():
                 busy += 1
+            if not waiting and busy < workers:  # a worker is idle and nothing is left to split
+                tail = True
+                for _ in range(workers):  # one each (`_give_back`): idle ones now, others next
+                    running[pool.submit(_give_back, workers)] = ()  # a job of no units
 
         for scenario_id in tracker.ready:
             merge(scenario_id)

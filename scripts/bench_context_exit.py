@@ -2,15 +2,18 @@
 they start, and to exit together holding it, as they do at its end: with their context held,
 after releasing it, and without GL (the reference).
 
-    python scripts/bench_context_exit.py [--processes 32] [--gpus all] [--modes held released none]
-        [--at-once K]
+    python scripts/bench_context_exit.py [--processes 32] [--gpus all]
+        [--modes held released early none] [--at-once K]
 
 Forks `--processes` processes; each touches 400 MB of memory and, unless its mode is "none",
 makes the collector's GL context (`gl_renderer.gl_available`, on EGL device k mod the GPUs,
 as `--gpus` deals them) with two 1600x900 framebuffers (RGBA, float depth) and 100 MB of
-buffers, draws and reads once, then waits. All are then told to exit at once (`os._exit`,
-"released": after releasing the context) and the time until the last is gone is printed, with
-its ratio to "none". NVIDIA's driver tears contexts down one at a time, so the time grows with
+buffers, draws and reads once, then waits. All are then told to exit at once (`os._exit`;
+"released": after moderngl's release of the context, which only asks EGL to destroy it once it
+is no longer current) and the time until the last is gone is printed, with its ratio to "none".
+"early": each gives its context back to the driver (`gl_renderer.release_context`: made current
+nowhere, destroyed, its display terminated) as soon as it is ready, all at about the same time,
+before they are told to exit; how long that took is printed too. NVIDIA's driver tears contexts down one at a time, so the time grows with
 the processes (docs/benchmarks.md, nineteenth session); llvmpipe's are freed with the process.
 For the modes with GL it also prints how long a process took to make its context and be ready
 (median and longest), when the median process was ready and when the last was, counted from the
@@ -26,7 +29,7 @@ import os
 import statistics
 import time
 
-MODES = ("held", "released", "none")
+MODES = ("held", "released", "early", "none")
 TOUCHED_BYTES = 400_000_000  # a worker's memory, roughly
 FRAMEBUFFER_PX = (1600, 900)
 
@@ -60,7 +63,13 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -
         context.clear(0.1, 0.2, 0.3)
         framebuffers[0].read()
         del buffers
-    made.put((began, time.perf_counter()))
+    ready_at = time.perf_counter()
+    released = (ready_at, ready_at)
+    if mode == "early":  # given back before the others are told to exit, all at once
+        del framebuffers
+        gl_renderer.release_context()
+        released = (ready_at, time.perf_counter())
+    made.put((began, ready_at, *released))
     ready.release()
     go.wait()
     if mode == "released" and context is not None:
@@ -72,17 +81,24 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -
 def creation(spans: list[tuple[float, float]]) -> dict[str, float]:
     """Of each process's (began, ready) in seconds: the median and longest time a process took,
     and, from the first beginning, when the median process was ready and the last."""
-    each = [ready - began for began, ready in spans]
-    first = min(began for began, _ in spans)
-    readies = [ready - first for _, ready in spans]
+    each = [ready - began for began, ready, *_ in spans]
+    first = min(began for began, *_ in spans)
+    readies = [ready - first for _, ready, *_ in spans]
     return {"median": statistics.median(each), "longest": max(each),
             "ready": statistics.median(readies),
             "span": max(readies)}  # fmt: skip
 
 
+def releases(spans: list[tuple[float, ...]]) -> tuple[float, float]:
+    """Of each process's (began, ready, releasing, released): the median time a release took
+    and the span from the first release's beginning to the last's end."""
+    each = [end - start for *_, start, end in spans]
+    return statistics.median(each), max(s[3] for s in spans) - min(s[2] for s in spans)
+
+
 def exit_seconds(
     processes: int, mode: str, gpus: tuple[int, ...], at_once: int = 0
-) -> tuple[float, list[tuple[float, float]]]:
+) -> tuple[float, list[tuple[float, ...]]]:
     """Seconds from telling `processes` processes of `mode` to exit to the last one gone, and
     each process's (began, ready) making its context, `at_once` at a time (0: all). They are
     forked: call it from a process that has made no GL context."""
@@ -133,6 +149,10 @@ def main() -> None:
             print(f"  {mode:<9} made a context in {made['median']:.3f} s (median), "
                   f"{made['longest']:.3f} longest; ready {made['ready']:.3f} s (median) and "
                   f"{made['span']:.3f} s (last) after the first began")  # fmt: skip
+        if mode == "early":
+            median, span = releases(spans)
+            print(f"  {mode:<9} gave its context back in {median:.3f} s (median); all "
+                  f"{len(spans)} within {span:.3f} s")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import multiprocessing
 import shutil
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import LONG_CLIP_FRAMES, SMALL_COLLECT, copy_clips
 
@@ -593,3 +595,81 @@ def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
         slots.release()
         assert job.result(timeout=60) is True
     assert slots.acquire(timeout=5)  # given back once made
+
+
+def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
+    """`_give_back`, the pool's last job for each worker: the idle worker gives its context back
+    at once and is held until the busy one has done the same after its job (so neither takes
+    two); afterwards no worker holds a context."""
+    from drivee2e_data.processes import worker_pool
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    if not gl_available():
+        pytest.skip("no OpenGL context can be made here")
+    context = runner.worker_context()
+    given_back = (context.Value("i", 0), context.Event())
+    initargs = (context.Queue(), context.Queue(), context.Queue(), context.Value("i", 0), (),
+                runner._Claims(1, context).shared, str(tmp_path), True, None,
+                given_back)  # fmt: skip
+    with worker_pool(2, runner._init_worker, initargs, context) as pool:
+        assert all(pool.submit(_has_gl_context).result() for _ in range(2))
+        busy = pool.submit(time.sleep, 2.0)
+        time.sleep(0.5)  # the other worker idle
+        first, second = (pool.submit(runner._give_back, 2) for _ in range(2))
+        time.sleep(0.5)
+        assert given_back[0].value == 1 and not first.done() and not second.done()
+        busy.result(timeout=60)
+        assert first.result(timeout=60) == [] and second.result(timeout=60) == []
+        assert given_back[0].value == 2 and given_back[1].is_set()
+        assert not any(pool.submit(_has_gl_context).result() for _ in range(4))
+
+
+def test_a_context_given_back_is_made_again_and_draws_the_same(tmp_path):
+    """`gl_renderer.release_context` in a fresh process: the context is gone (and a second call
+    has none to give back); the next renderer makes a new one and draws the same pixels."""
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    if not gl_available():
+        pytest.skip("no OpenGL context can be made here")
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        first, released, cached, again, second = pool.apply(_draw_release_draw)
+    assert released and cached == 0 and not again
+    assert first.shape == (24, 32, 3) and np.array_equal(first, second)
+    assert first[12, 16, 0] > 100  # the red cube is there
+
+
+def _draw_release_draw():
+    import pybullet
+
+    from drivee2e_data.sim import gl_renderer
+    from drivee2e_data.sim.conditions import ShaderLook
+
+    look = ShaderLook(
+        light_direction=(0.0, 0.0, 1.0), sun_rgb=(0.5, 0.5, 0.5), sky_ambient=(0.5, 0.5, 0.5),
+        ground_ambient=(0.5, 0.5, 0.5), zenith_rgb=(0.7, 0.8, 0.9), horizon_rgb=(0.7, 0.8, 0.9),
+        cloud_cover=0.0, cloud_rgb=(1.0, 1.0, 1.0), sun_disc=0.0, shadows=True,
+        fog_rgb=(0.8, 0.8, 0.8), fog_density=0.0, wetness=0.0, lamps_on=False, headlights=False,
+    )  # fmt: skip
+    client = pybullet.connect(pybullet.DIRECT)
+    shape = pybullet.createVisualShape(
+        pybullet.GEOM_BOX, halfExtents=[1, 1, 1], rgbaColor=[1, 0, 0, 1], physicsClientId=client
+    )
+    pybullet.createMultiBody(0, -1, shape, [10, 0, 1], physicsClientId=client)
+    view = pybullet.computeViewMatrix([0, 0, 1], [1, 0, 1], [0, 0, 1], physicsClientId=client)
+    projection = pybullet.computeProjectionMatrixFOV(40.0, 32 / 24, 0.5, 200.0,
+                                                     physicsClientId=client)  # fmt: skip
+
+    def draw():
+        renderer = gl_renderer.GLRenderer(pybullet, client, [], look)
+        renderer.sync(1)
+        rgb = np.array(renderer.draw(view, projection, 32, 24, False, 200.0)[0])
+        renderer.release()
+        return rgb
+
+    first = draw()
+    released = gl_renderer.release_context()
+    cached = gl_renderer._context.cache_info().currsize
+    again = gl_renderer.release_context()
+    second = draw()
+    pybullet.disconnect(client)
+    return first, released, cached, again, second

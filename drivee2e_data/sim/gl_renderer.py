@@ -193,6 +193,39 @@ def gl_available() -> bool:
     return _context() is not None
 
 
+def release_context() -> bool:
+    """Give this process's GL context back to the driver now rather than at the process's exit:
+    made current nowhere, destroyed, and its EGL display terminated, so that the driver frees
+    what it holds for the context (NVIDIA's does so one process at a time, docs/benchmarks.md).
+    Every renderer drawing with it must have been released first. Its compiled programs and the
+    uniforms last set are forgotten; the next `_context()` makes a new one. Returns whether
+    there was one to release."""
+    if not _context.cache_info().currsize:
+        return False
+    context = _context()
+    _context.cache_clear()
+    _program.cache_clear()
+    _gather_program.cache_clear()
+    _UNIFORMS.clear()
+    _MEMBERS.clear()
+    _LOOKS.clear()
+    if context is None:
+        return False
+    egl = _libegl()
+    display = None
+    if egl is not None:
+        egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
+        with context:
+            display = egl.eglGetCurrentDisplay()
+    context.release()  # eglDestroyContext: deferred while the context is current
+    if display:
+        egl.eglMakeCurrent(display, None, None, None)
+        egl.eglTerminate.argtypes = [ctypes.c_void_p]
+        egl.eglTerminate(display)
+        egl.eglReleaseThread()
+    return True
+
+
 def gl_renderer_name() -> str:
     """The GL driver's renderer string (for example 'llvmpipe ...' or 'NVIDIA H100 ...')."""
     context = _context()
