@@ -613,11 +613,14 @@ def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
                 given_back)  # fmt: skip
     with worker_pool(2, runner._init_worker, initargs, context) as pool:
         assert all(pool.submit(_has_gl_context).result() for _ in range(2))
-        busy = pool.submit(time.sleep, 2.0)
+        busy = pool.submit(time.sleep, 6.0)
         time.sleep(0.5)  # the other worker idle
         first, second = (pool.submit(runner._give_back, 2) for _ in range(2))
-        time.sleep(0.5)
+        deadline = time.monotonic() + 4.0
+        while given_back[0].value < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert given_back[0].value == 1 and not first.done() and not second.done()
+        assert not busy.done()  # the second is the busy worker's, once its job ends
         busy.result(timeout=60)
         assert first.result(timeout=60) == [] and second.result(timeout=60) == []
         assert given_back[0].value == 2 and given_back[1].is_set()

@@ -132,6 +132,7 @@ def _libegl():
         getattr(library, function).restype = ctypes.c_void_p
     library.eglGetCurrentSurface.argtypes = [ctypes.c_int]
     library.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+    library.eglTerminate.argtypes = [ctypes.c_void_p]
     return library
 
 
@@ -214,13 +215,11 @@ def release_context() -> bool:
     egl = _libegl()
     display = None
     if egl is not None:
-        egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
         with context:
             display = egl.eglGetCurrentDisplay()
     context.release()  # eglDestroyContext: deferred while the context is current
     if display:
         egl.eglMakeCurrent(display, None, None, None)
-        egl.eglTerminate.argtypes = [ctypes.c_void_p]
         egl.eglTerminate(display)
         egl.eglReleaseThread()
     return True
