@@ -122,10 +122,12 @@ def test_processes_exit_measured_with_and_without_a_gl_context() -> None:
     assert lines[0].startswith("2 processes")
     exits = [line.split() for line in lines[1:] if "exited" in line]
     seconds = {words[0]: float(words[3]) for words in exits}
-    assert set(seconds) == {"held", "released", "none"}
+    assert set(seconds) == {"held", "released", "early", "none"}
     assert all(0.0 < value < 30.0 for value in seconds.values())
     made = [line.split() for line in lines[1:] if "made a context" in line]
-    assert [words[0] for words in made] == ["held", "released"]  # none makes no context
+    assert [words[0] for words in made] == ["held", "released", "early"]  # none makes none
+    (given,) = [line.split() for line in lines[1:] if "gave its context back" in line]
+    assert given[0] == "early" and 0.0 < float(given[6]) <= float(given[12]) < 30.0
     for words in made:
         median, longest = float(words[5]), float(words[8])
         ready, span = float(words[11]), float(words[15])
