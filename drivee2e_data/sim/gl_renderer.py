@@ -198,9 +198,10 @@ def release_context() -> bool:
     """Give this process's GL context back to the driver now rather than at the process's exit:
     made current nowhere, destroyed, and its EGL display terminated, so that the driver frees
     what it holds for the context (NVIDIA's does so one process at a time, docs/benchmarks.md).
-    Every renderer drawing with it must have been released first. Its compiled programs and the
-    uniforms last set are forgotten; the next `_context()` makes a new one. Returns whether
-    there was one to release."""
+    Every renderer drawing with it must have been released first, and pybullet's EGL plugin (a
+    world with renderer "egl") closed: the display they may share is terminated. Its compiled
+    programs and the uniforms last set are forgotten; the next `_context()` makes a new one.
+    Returns whether there was one to release."""
     if not _context.cache_info().currsize:
         return False
     context = _context()
