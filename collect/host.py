@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivee2e_data.collect.segments import shortest_unit
+from drivee2e_data.sim import mesa
 from drivee2e_data.sim.world import resolve_renderer
 
 RENDERER_NAMES = {"gl": "GL renderer", "egl": "pybullet EGL", "tiny": "TinyRenderer"}
@@ -32,12 +33,13 @@ class HostPlan:
     gpu: bool
     renderer: str  # "gl", "egl" or "tiny": what "auto" resolved to here
     gpus: int = 0  # EGL GPU devices the GL renderer's workers share round robin
+    mesa: str = ""  # which Mesa draws, where the GL renderer draws on a CPU (`sim.mesa`)
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
         if self.gpus > 1:
             device = f"{self.gpus} GPUs"
-        renderer = RENDERER_NAMES[self.renderer]
+        renderer = RENDERER_NAMES[self.renderer] + (f" on {self.mesa}" if self.mesa else "")
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
             f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
@@ -84,4 +86,6 @@ def plan(
     units = max(1, frames // shortest_unit(sensor_every))
     workers = max(1, min(cores, units, int(memory // WORKER_MEMORY_GIB)))
     lidar = "raycast" if renderer == "tiny" else "depth"
-    return HostPlan(workers, lidar, cores, memory, gpu, renderer, gpus if renderer == "gl" else 0)
+    drawn_by = mesa.describe() if renderer in ("gl", "egl") and not gpu else ""
+    return HostPlan(workers, lidar, cores, memory, gpu, renderer, gpus if renderer == "gl" else 0,
+                    drawn_by)  # fmt: skip

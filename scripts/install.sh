@@ -18,3 +18,12 @@ python -m pip install --quiet -e ".[${EXTRAS:-dev,viz}]"
 # to report (installed earlier, every later pip call printed a resolver ERROR about the pin).
 python -m pip install --quiet "omegaconf>=2.1" "iso3166>=1.0" "lxml>=4.2" "networkx>=2.2" "rtree>=0.8" "scipy>=1.11" "pillow>=10.4"
 python -m pip install --quiet --no-deps "commonroad-io==2026.1" "commonroad-vehicle-models==3.0.2"
+# Without a GPU, Mesa's llvmpipe draws the cameras. Mesa 25 (Debian 12's bookworm-backports, the
+# same LLVM) draws the same images as Debian 12's own Mesa 22.3 in about four fifths of the time
+# (docs/benchmarks.md), so it is fetched into .venv/mesa, where drivee2e finds it; it stays off
+# wherever a GPU's EGL vendor is installed. DRIVEE2E_FETCH_MESA=0 skips this; a fetch that fails
+# (no network, not Debian 12 or alike) only warns: the system's Mesa then draws.
+if [ "${DRIVEE2E_FETCH_MESA:-1}" != 0 ] && [ "$(uname -s)" = Linux ] && [ ! -f .venv/mesa/mesa.json ]; then
+    .venv/bin/drivee2e mesa --fetch --folder .venv/mesa \
+        || echo "install.sh: Mesa 25 not fetched (above); the system's Mesa will draw" >&2
+fi

@@ -159,7 +159,11 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
                 assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
             else:
                 assert len(batches.group) == len(batches.groups)
-    assert np.array_equal(images[True].rgb, images[False].rgb)
+    # the colour to a level: the two ways compile the materials into different programs, and
+    # Mesa 25's llvmpipe rounds one pixel of this image a level apart between them (Mesa 22.3
+    # none); what is drawn where, depth and ids, is the same to the bit
+    difference = np.abs(images[True].rgb.astype(int) - images[False].rgb.astype(int))
+    assert difference.max() <= 1 and (difference.max(axis=2) > 0).mean() < 1e-4
     assert np.array_equal(images[True].depth_m, images[False].depth_m)
     assert np.array_equal(images[True].segmentation, images[False].segmentation)
 

@@ -1,7 +1,7 @@
 """The `drivee2e` command: parses arguments, calls the library, prints. No logic of its own.
 
 One module per group of commands: `data` (synth, import, curate, scenarios, split),
-`collection` (view, collect, logs), `learning` (train, predict, openloop, export) and
+`collection` (view, collect, logs, mesa), `learning` (train, predict, openloop, export) and
 `closedloop` (evaluate); `arguments` holds the argument types they share.
 """
 
@@ -37,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     learning.add_export(commands)
     closedloop.add_evaluate(commands)
     collection.add_logs(commands)
+    collection.add_mesa(commands)
     return parser
 
 
@@ -56,6 +57,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "openloop": learning.run_openloop,
         "export": learning.run_export,
         "evaluate": closedloop.run_evaluate,
+        "mesa": collection.run_mesa,
     }
     try:
         return handlers[args.command](args)

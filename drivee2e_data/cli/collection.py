@@ -1,4 +1,4 @@
-"""Expert data: `collect`, `logs` and `view` (one frame's views)."""
+"""Expert data: `collect`, `logs`, `view` (one frame's views) and `mesa` (the CPU's GL driver)."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from drivee2e_data.sensors.camera_gpu import POST_PROCESS_DEVICES
 from drivee2e_data.sensors.camera_gpu import check_device as check_post_process_device
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.suite import LIDAR_METHODS
-from drivee2e_data.sim import egl_devices
+from drivee2e_data.sim import egl_devices, gl_renderer, mesa, mesa_fetch
 from drivee2e_data.sim.world import RENDERERS
 
 
@@ -115,6 +115,39 @@ def add_logs(commands) -> None:  # type: ignore[no-untyped-def]
     logs = commands.add_parser("logs", help="list and validate the MCAP logs of a data root")
     logs.add_argument("data", type=Path, help="data root")
     logs.add_argument("--validate", action="store_true", help="check every topic at every frame")
+
+
+def add_mesa(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `mesa` command's arguments."""
+    command = commands.add_parser(
+        "mesa", help="which Mesa draws on a CPU; --fetch puts Mesa 25 (faster llvmpipe) in place"
+    )
+    command.add_argument("--fetch", action="store_true",
+                         help=f"fetch Mesa's EGL libraries from Debian's {mesa_fetch.SUITE}")  # fmt: skip
+    command.add_argument("--folder", type=Path, default=None,
+                         help=f"where (default: where {mesa.MESA_VARIABLE} names, else "
+                              f"{mesa.default_folder()}, where drivee2e finds it)")  # fmt: skip
+    command.add_argument("--mirror", default=mesa_fetch.MIRROR, help="Debian mirror")
+
+
+def run_mesa(args: argparse.Namespace) -> int:
+    if args.fetch:
+        folder = args.folder or mesa.chosen_folder()
+        reason = mesa.why_not(folder)
+        if reason is not None or folder is None:
+            raise DriveE2EError(f"Mesa not fetched: it would not be used here ({reason})")
+        found, renderer = mesa_fetch.fetch(folder, mirror=args.mirror)
+        print(f"Mesa {found.version} in {found.folder}: {renderer}")
+        chosen = mesa.chosen_folder()
+        if chosen is None or chosen.resolve() != found.folder.resolve():
+            print(f"export {mesa.MESA_VARIABLE}={found.folder.resolve()}  # to use it")
+        return 0
+    print(mesa.describe())
+    if gl_renderer.gl_available():
+        print(f"OpenGL: {gl_renderer.gl_renderer_name()}, {gl_renderer.gl_version()}")
+    else:
+        print("OpenGL: no context can be made here (moderngl over EGL)")
+    return 0
 
 
 def run_view(args: argparse.Namespace) -> int:

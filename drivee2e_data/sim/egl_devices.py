@@ -13,6 +13,8 @@ import ctypes.util
 import functools
 import os
 
+from drivee2e_data.sim import mesa
+
 DEVICE_VARIABLE = "GLCONTEXT_DEVICE_INDEX"  # read by glcontext's EGL backend
 EGL_EXTENSIONS = 0x3055
 SOFTWARE_EXTENSION = "EGL_MESA_device_software"  # Mesa's llvmpipe device
@@ -22,6 +24,7 @@ SOFTWARE_EXTENSION = "EGL_MESA_device_software"  # Mesa's llvmpipe device
 def gpu_devices() -> tuple[int, ...]:
     """Indices (in `eglQueryDevicesEXT` order, as glcontext counts) of the EGL devices that are
     not a software rasteriser; () where EGL or its device extension is missing."""
+    mesa.activate()  # EGL's vendors are read once, at the first call: the same as the renderer's
     name = ctypes.util.find_library("EGL")
     if name is None:
         return ()

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from drivee2e_data.sim import mesa
 from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
 from drivee2e_data.sim.gl_batches import (
     DECALS,
@@ -114,6 +115,7 @@ def _context():
     try:
         import moderngl
 
+        mesa.activate()  # a newer Mesa where one was fetched, before EGL's first call
         with current(None):
             return moderngl.create_standalone_context(backend="egl")
     except Exception as error:  # any failure means: no GL here
@@ -224,6 +226,12 @@ def release_context() -> bool:
         egl.eglTerminate(display)
         egl.eglReleaseThread()
     return True
+
+
+def gl_version() -> str:
+    """The GL driver's version string (for example '4.5 (Core Profile) Mesa 25.0.7...')."""
+    context = _context()
+    return "" if context is None else str(context.info["GL_VERSION"])
 
 
 def gl_renderer_name() -> str:

@@ -28,7 +28,7 @@ from drivee2e_data.arrays import nearest_indices
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, Scenario, SignalState, Track
-from drivee2e_data.sim import reuse
+from drivee2e_data.sim import mesa, reuse
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
@@ -137,6 +137,7 @@ def _connect(renderer: str) -> tuple[int, str]:
         loader = pkgutil.get_loader("eglRenderer")
         plugin = -1
         if loader is not None:
+            mesa.activate()  # the plugin's EGL: the same driver as the GL renderer's
             plugin = pybullet.loadPlugin(
                 loader.get_filename(), "_eglRendererPlugin", physicsClientId=client
             )
