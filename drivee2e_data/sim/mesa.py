@@ -60,7 +60,7 @@ def chosen_folder() -> Path | None:
     value = os.environ.get(MESA_VARIABLE, "").strip()
     if value.lower() == "system":
         return None
-    return Path(value).expanduser() if value else default_folder()
+    return Path(value).expanduser().resolve() if value else default_folder()
 
 
 def read_private(folder: Path) -> PrivateMesa | None:
@@ -117,7 +117,7 @@ def _loaded_elsewhere(mesa: PrivateMesa) -> list[str]:
         maps = Path("/proc/self/maps").read_text()
     except OSError:
         return []
-    lib = str(mesa.folder / "lib")
+    lib = str((mesa.folder / "lib").resolve())
     paths = {line.split()[-1] for line in maps.splitlines() if "/" in line}
     return [path for path in sorted(paths)
             if Path(path).name.startswith(SHARED_SONAMES) and not path.startswith(lib)]  # fmt: skip
@@ -128,7 +128,7 @@ def activate() -> PrivateMesa | None:
     """Make the chosen folder's Mesa the driver of this process's EGL, once, before any EGL call
     (every entry to EGL in the project calls this first). Returns it, or None where the
     system's stays (`why_not`, no folder or no manifest, or the libraries would not load: said
-    in the log, never an error, since the system's Mesa draws the same images)."""
+    in the log, never an error: the system's Mesa draws the same images but for a few pixels)."""
     folder = chosen_folder()
     reason = why_not(folder)
     if reason is None and folder is not None:
