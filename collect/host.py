@@ -12,6 +12,7 @@ docs/benchmarks.md); with TinyRenderer, ray casting.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,6 +35,11 @@ class HostPlan:
     renderer: str  # "gl", "egl" or "tiny": what "auto" resolved to here
     gpus: int = 0  # EGL GPU devices the GL renderer's workers share round robin
     mesa: str = ""  # which Mesa draws, where the GL renderer draws on a CPU (`sim.mesa`)
+    workers_given: bool = False  # the user gave the workers (`given`); the host chose the rest
+
+    def given(self, workers: int) -> HostPlan:
+        """The plan with the user's number of workers in place of the host's."""
+        return dataclasses.replace(self, workers=workers, workers_given=True)
 
     def describe(self) -> str:
         device = "an NVIDIA GPU" if self.gpu else "no GPU"
@@ -42,7 +48,8 @@ class HostPlan:
         renderer = RENDERER_NAMES[self.renderer] + (f" on {self.mesa}" if self.mesa else "")
         return (
             f"host: {self.cores} cores, {self.memory_gib:.0f} GiB, {device}, {renderer} -> "
-            f"{self.workers} worker{'s' if self.workers != 1 else ''} (--workers auto), "
+            f"{self.workers} worker{'s' if self.workers != 1 else ''} "
+            f"(--workers {self.workers if self.workers_given else 'auto'}), "
             f"{self.lidar} LiDAR"
         )
 

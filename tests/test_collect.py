@@ -321,6 +321,9 @@ def test_the_host_plan_fits_cores_frames_memory_and_gpus():
     )  # 1.5 GiB
     laptop = plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="gl")
     assert (laptop.workers, laptop.lidar) == (2, "depth")  # llvmpipe: depth images faster
+    assert "GL renderer on " in laptop.describe() and "Mesa" in laptop.mesa  # which draws
+    assert gpu_host.mesa == ""  # a GPU draws: no Mesa named
+    assert "-> 3 workers (--workers 3), depth LiDAR" in laptop.given(3).describe()
     assert plan(frames=480, cores=2, memory=24.0, gpu=False, renderer="egl").lidar == "depth"
     assert plan(frames=480, cores=2, memory=24.0, gpu=True, renderer="tiny").lidar == "raycast"
     assert plan(frames=0, cores=2, memory=1.0, gpu=False, renderer="tiny").workers == 1

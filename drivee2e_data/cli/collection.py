@@ -213,7 +213,10 @@ def plan_collect(args: argparse.Namespace) -> CollectPlan:
             gpus=len(gpus),
             sensor_every=topics.sensor_every(args.sensor_hz),
         )
-        workers = host.workers if workers == "auto" else workers
+        if workers == "auto":
+            workers = host.workers
+        else:  # the host chose the LiDAR only; the line printed says the workers given
+            host = host.given(workers)
         lidar = lidar or host.lidar
     options = CollectOptions(
         renderer=args.renderer,
