@@ -123,39 +123,46 @@ def _loaded_elsewhere(mesa: PrivateMesa) -> list[str]:
             if Path(path).name.startswith(SHARED_SONAMES) and not path.startswith(lib)]  # fmt: skip
 
 
+def _candidate() -> tuple[PrivateMesa | None, str, bool]:
+    """The fetched Mesa this process would load; else None, why not, and whether that is a
+    broken folder (worth a warning) rather than a choice or nothing fetched."""
+    folder = chosen_folder()
+    reason = why_not(folder)
+    if reason is not None or folder is None:
+        return None, reason or "", False
+    try:
+        found = read_private(folder)
+    except ValueError as error:
+        return None, str(error), True
+    if found is None:
+        return None, f"none fetched into {folder}: drivee2e mesa --fetch", False
+    return found, "", False
+
+
 @functools.cache
 def activate() -> PrivateMesa | None:
     """Make the chosen folder's Mesa the driver of this process's EGL, once, before any EGL call
     (every entry to EGL in the project calls this first). Returns it, or None where the
     system's stays (`why_not`, no folder or no manifest, or the libraries would not load: said
     in the log, never an error: the system's Mesa draws the same images but for a few pixels)."""
-    folder = chosen_folder()
-    reason = why_not(folder)
-    if reason is None and folder is not None:
-        try:
-            mesa = read_private(folder)
-        except ValueError as error:
-            LOG.warning("the system's Mesa is used: %s", error)
-            return None
-        if mesa is None:
-            return None
-        clashes = _loaded_elsewhere(mesa)
-        if clashes:
-            LOG.warning("the system's Mesa is used: %s already loaded", ", ".join(clashes))
-            return None
-        try:
-            for name in mesa.libraries:  # dependencies first: each found by its soname after
-                ctypes.CDLL(str(mesa.folder / "lib" / name), mode=ctypes.RTLD_GLOBAL)
-        except OSError as error:
-            LOG.warning("the system's Mesa is used: Mesa %s in %s does not load (%s)",
-                        mesa.version, mesa.folder, error)  # fmt: skip
-            return None
-        os.environ[VENDOR_VARIABLES[0]] = str(mesa.vendor_file)
-        LOG.debug("EGL's driver: Mesa %s from %s", mesa.version, mesa.folder)
-        return mesa
-    if reason is not None:
-        LOG.debug("the system's Mesa is used: %s", reason)
-    return None
+    mesa, reason, broken = _candidate()
+    if mesa is None:
+        (LOG.warning if broken else LOG.debug)("the system's Mesa is used: %s", reason)
+        return None
+    clashes = _loaded_elsewhere(mesa)
+    if clashes:
+        LOG.warning("the system's Mesa is used: %s already loaded", ", ".join(clashes))
+        return None
+    try:
+        for name in mesa.libraries:  # dependencies first: each found by its soname after
+            ctypes.CDLL(str(mesa.folder / "lib" / name), mode=ctypes.RTLD_GLOBAL)
+    except OSError as error:
+        LOG.warning("the system's Mesa is used: Mesa %s in %s does not load (%s)",
+                    mesa.version, mesa.folder, error)  # fmt: skip
+        return None
+    os.environ[VENDOR_VARIABLES[0]] = str(mesa.vendor_file)
+    LOG.debug("EGL's driver: Mesa %s from %s", mesa.version, mesa.folder)
+    return mesa
 
 
 def describe() -> str:
@@ -163,14 +170,7 @@ def describe() -> str:
     found = activate()
     if found is not None:
         return f"Mesa {found.version} from {found.folder}"
-    folder = chosen_folder()
-    reason = why_not(folder)
-    if reason is None and folder is not None:
-        try:
-            private = read_private(folder)
-        except ValueError as error:
-            reason = str(error)
-        else:
-            reason = (f"none fetched into {folder}: drivee2e mesa --fetch" if private is None
-                      else f"Mesa {private.version} in {folder} did not load")  # fmt: skip
+    mesa, reason, _ = _candidate()
+    if mesa is not None:
+        reason = f"Mesa {mesa.version} in {mesa.folder} did not load"
     return f"the system's Mesa ({reason})"
