@@ -192,6 +192,8 @@ def open_clip(
         "post_process": options.post_process,
         "sensor_hz": str(options.sensor_hz),
     }
+    if world.renderer == "gl":  # which driver drew the images (Mesa versions differ in pixels)
+        collection["gl_driver"] = gl_renderer.gl_driver()
     labels = label_metadata(suite, options) if options.camera_labels else None
     if stage_seconds is not None:
         stage_seconds["setup"] = stage_seconds.get("setup", 0.0) + time.perf_counter() - tick

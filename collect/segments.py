@@ -674,8 +674,11 @@ class SegmentedLog:
 
 
 def _records(header: dict) -> str:
-    """A segment's log records (renderer, rig's labels), as one comparable string."""
-    return json.dumps([header["collection"], header["labels"]], sort_keys=True)
+    """A segment's log records (renderer, rig's labels), as one comparable string. Not the GL
+    driver: a Ray cluster's nodes may hold different GPUs, whose segments still make one log
+    (its record names the driver of its first segment)."""
+    collection = {k: v for k, v in header["collection"].items() if k != "gl_driver"}
+    return json.dumps([collection, header["labels"]], sort_keys=True)
 
 
 def merge_clip(root: Path, scenario_id: str, options: CollectOptions, frames: int) -> JobResult:

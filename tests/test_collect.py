@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.logs.reader import validate
+from drivee2e_data.logs.reader import LogReader, validate
 from drivee2e_data.sensors import annotate
 from drivee2e_data.sensors.camera import render
 from drivee2e_data.sensors.suite import SensorSuite, SuiteOptions
@@ -398,3 +398,15 @@ def test_a_pool_worker_reports_each_unit_as_it_ends_not_when_its_job_does(monkey
         ("set up", 4, True, 0.5),
         ("reported", 4, "b"),
     ]
+
+
+def test_a_log_names_the_gl_driver_that_drew_it(collected_root: Path):
+    from drivee2e_data.sim.gl_renderer import gl_driver
+
+    for path in sorted((collected_root / "logs").glob("*.mcap")):
+        with LogReader(path) as log:
+            collection = log.collection
+        if collection["renderer"] != "gl":
+            pytest.skip("the GL renderer does not draw here")
+        # this process makes its context as the collector's did (the same Mesa)
+        assert collection["gl_driver"] == gl_driver() and ", OpenGL " in collection["gl_driver"]

@@ -676,3 +676,14 @@ def _draw_release_draw():
     second = draw()
     pybullet.disconnect(client)
     return first, released, cached, again, second
+
+
+def test_segments_drawn_by_different_gl_drivers_still_make_one_log() -> None:
+    """A cluster's nodes may draw with different GPUs: the driver is not part of what the
+    segments of one log must share; the renderer, look and rig are."""
+    header = {"collection": {"renderer": "gl", "look": "6", "gl_driver": "NVIDIA H100, OpenGL 4.6"},
+              "labels": None}  # fmt: skip
+    other = {**header, "collection": {**header["collection"], "gl_driver": "NVIDIA A100"}}
+    assert segments._records(header) == segments._records(other)
+    tiny = {**header, "collection": {**header["collection"], "renderer": "tiny"}}
+    assert segments._records(header) != segments._records(tiny)

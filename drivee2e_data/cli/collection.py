@@ -144,7 +144,7 @@ def run_mesa(args: argparse.Namespace) -> int:
         return 0
     print(mesa.describe())
     if gl_renderer.gl_available():
-        print(f"OpenGL: {gl_renderer.gl_renderer_name()}, {gl_renderer.gl_version()}")
+        print(f"drawn by: {gl_renderer.gl_driver()}")
     else:
         print("OpenGL: no context can be made here (moderngl over EGL)")
     return 0

@@ -234,6 +234,12 @@ def gl_version() -> str:
     return "" if context is None else str(context.info["GL_VERSION"])
 
 
+def gl_driver() -> str:
+    """What draws: the renderer and version strings, for example 'llvmpipe (LLVM 15.0.6, 256
+    bits), OpenGL 4.5 (Core Profile) Mesa 25.0.7-2~bpo12+1'; "" without a context."""
+    return f"{gl_renderer_name()}, OpenGL {gl_version()}" if gl_available() else ""
+
+
 def gl_renderer_name() -> str:
     """The GL driver's renderer string (for example 'llvmpipe ...' or 'NVIDIA H100 ...')."""
     context = _context()
