@@ -191,12 +191,10 @@ def _verified_release(signed: bytes, source: str, keyring: Path | None) -> str:
 
 
 PROBE = (
-    "import moderngl, sys\n"
-    "from drivee2e_data.sim import mesa\n"
-    "found = mesa.activate()\n"
-    "if found is None: sys.exit('not activated: ' + mesa.describe())\n"
-    "context = moderngl.create_standalone_context(backend='egl')\n"
-    "print(context.info['GL_RENDERER'], '|', context.info['GL_VERSION'])\n"
+    "import sys\n"
+    "from drivee2e_data.sim import gl_renderer, mesa\n"
+    "if mesa.activate() is None: sys.exit('not activated: ' + mesa.describe())\n"
+    "print(gl_renderer.gl_driver() or sys.exit('no GL context (moderngl over EGL)'))\n"
 )
 
 
