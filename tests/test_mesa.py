@@ -114,7 +114,7 @@ def _mirror(corrupt: str | None = None) -> dict[str, bytes]:
 
 
 @pytest.mark.skipif(os.uname().machine != "x86_64", reason="the fake packages are x86_64's")
-def test_fetch_makes_the_folder_only_when_every_package_checks(tmp_path: Path) -> None:
+def test_fetch_makes_the_folder_only_when_every_package_checks(tmp_path: Path, monkeypatch) -> None:
     folder = tmp_path / "mesa"
     checked: list[Path] = []
 
@@ -142,6 +142,21 @@ def test_fetch_makes_the_folder_only_when_every_package_checks(tmp_path: Path) -
         mesa_fetch.fetch(folder, MIRROR, download=bad.__getitem__, check=check, keyring=None)
     assert mesa.read_private(folder) == found
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mesa"]  # no staging folder left
+
+    # the new folder failing to move into place after the old one was moved aside: the old back
+    rename = Path.rename
+
+    def failing_rename(self: Path, target: Path) -> Path:
+        if Path(target) == folder and not self.name.startswith(".mesa.old"):
+            raise OSError("no room")
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", failing_rename)
+    with pytest.raises(OSError, match="no room"):
+        mesa_fetch.fetch(folder, MIRROR, download=files.__getitem__, check=check, keyring=None)
+    monkeypatch.undo()
+    assert mesa.read_private(folder) == found
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mesa"]
 
     # a Mesa that draws as another version: refused, the folder kept
     with pytest.raises(mesa_fetch.MesaFetchError, match=r"expected Mesa 25\.0\.7"):

@@ -238,6 +238,7 @@ def fetch(
                               f"{base}/{index_path}")  # fmt: skip
     folder.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    old = None
     try:
         staging.chmod(0o755)  # mkdtemp makes it private
         (staging / "lib").mkdir()
@@ -261,7 +262,6 @@ def fetch(
         if f"Mesa {version}" not in description:
             raise MesaFetchError(f"Mesa in {staging} made a context of {description!r}, "
                                  f"expected Mesa {version}")  # fmt: skip
-        old = None
         if folder.exists():
             old = folder.with_name(f".{folder.name}.old-{os.getpid()}")
             folder.rename(old)
@@ -271,6 +271,8 @@ def fetch(
             shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
+        if old is not None and old.exists() and not folder.exists():
+            old.rename(folder)  # moved aside, the new one never in place: the old one back
         raise
     found = mesa.read_private(folder)
     assert found is not None
