@@ -109,9 +109,8 @@ def release_world() -> None:
     (`gl_renderer.release_context`), where a pool worker has nothing left to do before the run
     ends; a later clip sets a world up and makes a context again."""
     global _world
-    if _world is not None:
-        _world.close()
-        _world = None
+    _close_world()
+    _world = None
     gl_renderer.release_context()
 
 
