@@ -13,8 +13,9 @@ buffers, draws and reads once, then waits. All are then told to exit at once (`o
 is no longer current) and the time until the last is gone is printed, with its ratio to "none".
 "early": each gives its context back to the driver (`gl_renderer.release_context`: made current
 nowhere, destroyed, its display terminated) as soon as it is ready, all at about the same time,
-before they are told to exit; how long that took is printed too. NVIDIA's driver tears contexts down one at a time, so the time grows with
-the processes (docs/benchmarks.md, nineteenth session); llvmpipe's are freed with the process.
+before they are told to exit; how long that took is printed too. NVIDIA's driver tears
+contexts down one at a time, so the time grows with the processes (docs/benchmarks.md,
+nineteenth session); llvmpipe's are freed with the process.
 For the modes with GL it also prints how long a process took to make its context and be ready
 (median and longest), when the median process was ready and when the last was, counted from the
 first beginning. `--at-once K` lets only K processes make theirs at the same time, as the
