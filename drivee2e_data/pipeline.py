@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from drivee2e_data import store
+from drivee2e_data.curation.replay_flags import Flag
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.scenario import AgentClass, BehaviorCategory, BehaviorLabel, Scenario
@@ -409,7 +410,7 @@ class CurationRow:
 def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list[CurationRow]:
     """Score and repair tracks, keep or choose each clip's ego, label its behaviour, and write
     the results into every bundle under `root`. Deterministic; safe to run again."""
-    from drivee2e_data.curation import behavior, ego, quality
+    from drivee2e_data.curation import behavior, ego, quality, replay_flags
 
     counts: Counter[BehaviorCategory] = Counter()
     rows = []
@@ -445,6 +446,7 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
             ego_id, source = scenario.ego_id, "kept from the source"
             label = behavior.label(repaired, intersection_map, ego_id)
         metadata = dict(scenario.metadata)
+        metadata.pop(replay_flags.METADATA_KEY, None)  # checked again for this curation
         if scenario.behavior is not None and scenario.behavior.source != "labelled":
             metadata[f"{scenario.behavior.source}_behavior"] = scenario.behavior.sub_scenario.value
         metadata["curation"] = {
@@ -487,6 +489,63 @@ def curate(root: Path, on_scenario: Callable[[str], None] | None = None) -> list
         if on_scenario is not None:
             on_scenario(scenario_id)
     return rows
+
+
+def check_experts(
+    root: Path,
+    workers: int = 1,
+    on_clip: Callable[[str, tuple[Flag, ...]], None] | None = None,
+) -> dict[str, tuple[Flag, ...]]:
+    """The expert-replay check (`agents/expert_check.py`) of every curated clip under `root`
+    that this version has not checked yet, its flags written into the bundle's metadata as
+    each clip is done (a rerun resumes); `on_clip(id, flags)` as each finishes. Returns the
+    flags of every clip with an ego, checked now or before."""
+    from drivee2e_data.curation.replay_flags import recorded_flags
+
+    flags: dict[str, tuple[Flag, ...]] = {}
+    todo = []
+    for scenario_id in store.scenario_ids(root):
+        meta = store.read_meta(root, scenario_id)
+        if meta.get("ego_id") is None:
+            continue
+        done = recorded_flags(meta.get("metadata") or {})
+        if done is None:
+            todo.append(scenario_id)
+        else:
+            flags[scenario_id] = done
+    jobs = [(Path(root), scenario_id) for scenario_id in todo]
+    if workers <= 1 or len(jobs) <= 1:
+        outcomes: Iterable[tuple[str, tuple[Flag, ...]]] = (_check_expert(*job) for job in jobs)
+        for scenario_id, found in outcomes:
+            flags[scenario_id] = found
+            if on_clip is not None:
+                on_clip(scenario_id, found)
+    else:
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+            futures = [pool.submit(_check_expert, *job) for job in jobs]
+            for future in as_completed(futures):
+                scenario_id, found = future.result()
+                flags[scenario_id] = found
+                if on_clip is not None:
+                    on_clip(scenario_id, found)
+    return dict(sorted(flags.items()))
+
+
+_maps: dict[tuple[str, str], IntersectionMap] = {}  # this process's maps, by (root, map id)
+
+
+def _check_expert(root: Path, scenario_id: str) -> tuple[str, tuple[Flag, ...]]:
+    """One clip's expert-replay check, written into its bundle."""
+    from drivee2e_data.agents.expert_check import check_clip
+    from drivee2e_data.curation.replay_flags import METADATA_KEY, record
+
+    scenario = store.read_scenario(root, scenario_id)
+    key = (str(root), scenario.map_id)
+    if key not in _maps:
+        _maps[key] = store.read_map(root, scenario.map_id)
+    found = check_clip(scenario, _maps[key])
+    store.write_metadata_entry(root, scenario_id, METADATA_KEY, record(found))
+    return scenario_id, found
 
 
 STATISTIC_PANELS = ("behaviour", "agent class", "weather", "time of day")

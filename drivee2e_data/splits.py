@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivee2e_data import store
+from drivee2e_data.curation.replay_flags import recorded_flags
 from drivee2e_data.errors import DriveE2EError
 
 SPLITS = ("train", "val", "test")
@@ -159,11 +160,19 @@ def _with_split(clip: ClipRow, split: str) -> ClipRow:
     return ClipRow(split=split, **{k: v for k, v in vars(clip).items() if k != "split"})
 
 
-def clips_of(root: Path) -> list[ClipRow]:
-    """Every clip under `root` as an unassigned manifest row (from meta.json alone)."""
+FLAGGED = "flagged by the expert-replay check"
+
+
+def clips_of(root: Path, left_out: dict[str, str] | None = None) -> list[ClipRow]:
+    """Every clip under `root` as an unassigned manifest row (from meta.json alone). With
+    `left_out` (a dict to fill), clips the expert-replay check flagged are left out and
+    recorded there with the reason."""
     rows = []
     for scenario_id in store.scenario_ids(root):
         meta = store.read_meta(root, scenario_id)
+        if left_out is not None and recorded_flags(meta.get("metadata") or {}):
+            left_out[scenario_id] = FLAGGED
+            continue
         behavior = meta.get("behavior") or {}
         sub_scenario = behavior.get("sub_scenario", UNLABELLED)
         conditions = meta.get("conditions") or {}
@@ -234,15 +243,25 @@ def read_manifest(path: Path) -> list[ClipRow]:
     return rows
 
 
-def split_root(root: Path, name: str = "default", seed: int = 0) -> tuple[Path, list[ClipRow]]:
-    """Split every clip of a data root and write `root/splits/<name>.csv`."""
-    clips = clips_of(root)
+def split_root(
+    root: Path, name: str = "default", seed: int = 0, keep_flagged: bool = False
+) -> tuple[Path, list[ClipRow], dict[str, str]]:
+    """Split the clips of a data root and write `root/splits/<name>.csv`: every clip but those
+    the expert-replay check flagged (unless `keep_flagged`). Returns the manifest's path, its
+    rows and the clips left out with why."""
+    left_out: dict[str, str] = {}
+    clips = clips_of(root, None if keep_flagged else left_out)
     if not clips:
+        if left_out:
+            raise DriveE2EError(
+                f"{root}: every clip was flagged by the expert-replay check; --keep-flagged "
+                "keeps them"
+            )
         raise DriveE2EError(f"{root}: no scenarios to split (expected {root}/scenarios/<id>/)")
     rows = make_split(clips, seed)
     path = split_path(root, name)
     write_manifest(path, rows)
-    return path, rows
+    return path, rows, left_out
 
 
 def scenario_ids(path: Path, split: str) -> list[str]:

@@ -176,6 +176,17 @@ def read_meta(root: Path, scenario_id: str) -> dict[str, Any]:
     return meta
 
 
+def write_metadata_entry(root: Path, scenario_id: str, key: str, value: Any) -> None:
+    """Set `metadata[key]` in a bundle's meta.json, atomically, leaving its tables as they are."""
+    meta_file = scenario_dir(root, scenario_id) / "meta.json"
+    meta = read_meta(root, scenario_id)
+    metadata = meta.get("metadata")
+    if not isinstance(metadata, dict):
+        raise ScenarioFormatError(f"{meta_file}: metadata must be an object")
+    metadata[key] = value
+    write_bytes_atomic(meta_file, _json_bytes(meta))
+
+
 def _timeline(meta: dict[str, Any], meta_file: Path) -> tuple[int, int]:
     _check_schema(meta_file, meta)
     timeline = _get(meta, "timeline", dict, meta_file)

@@ -9,7 +9,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 # (layer, module-name prefixes), lowest first; a module may import its own layer and those below
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("geometry", ("geometry", "arrays", "errors", "processes")),
+    ("geometry", ("geometry", "arrays", "errors", "processes", "collision")),
     ("data model", ("scenario", "hdmap", "sun", "ego_limits", "binding")),
     ("storage", ("mapjson", "store")),
     ("sources, curation", ("sources", "curation")),

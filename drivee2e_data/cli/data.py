@@ -15,7 +15,9 @@ from drivee2e_data.cli.arguments import (
     _positive,
     _positive_float,
     _print_table,
+    _workers,
 )
+from drivee2e_data.collect.host import usable_cores
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import variants
@@ -89,6 +91,17 @@ def add_curate(commands) -> None:  # type: ignore[no-untyped-def]
         help="instead: write the occlusion variant (agents never seen by the ego's cameras in "
         "the collected logs removed: vehicles only, or every class) to DATA/variants/",
     )
+    curate.add_argument(
+        "--workers",
+        type=_workers,
+        default="auto",
+        help="processes for the expert-replay check (default auto: one per core)",
+    )
+    curate.add_argument(
+        "--check-only",
+        action="store_true",
+        help="only the expert-replay check of clips not checked yet (a rerun after a stop)",
+    )
 
 
 def add_scenarios(commands) -> None:  # type: ignore[no-untyped-def]
@@ -112,6 +125,12 @@ def add_split(commands) -> None:  # type: ignore[no-untyped-def]
     split.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     split.add_argument(
         "--name", default="default", help="manifest name: DATA/splits/NAME.csv (default: default)"
+    )
+    split.add_argument(
+        "--keep-flagged",
+        action="store_true",
+        help="keep clips the expert-replay check of `drivee2e curate` flagged (left out by "
+        "default: their expert breaks a rule)",
     )
 
 
@@ -191,8 +210,46 @@ def run_curate(args: argparse.Namespace) -> int:
         raise DriveE2EError(f"{args.data}: no scenarios/ folder; is this a drivee2e data root?")
     if args.occlusion is not None:
         return _occlusion(args)
+    if args.check_only:
+        return _check_experts(args)
     with tqdm(unit="clip", desc="curating", disable=None) as bar:
         rows = pipeline.curate(args.data, on_scenario=lambda _: bar.update(1))
+    _print_curation(rows)
+    return _check_experts(args)
+
+
+def _check_experts(args: argparse.Namespace) -> int:
+    """The expert-replay check of the curated clips, one line per flagged clip."""
+    workers = usable_cores() if args.workers == "auto" else args.workers
+    total = sum(
+        store.read_meta(args.data, i).get("ego_id") is not None
+        for i in store.scenario_ids(args.data)
+    )
+    with tqdm(total=total, unit="clip", desc="expert replay", disable=None) as bar:
+
+        def done(scenario_id: str, flags: tuple) -> None:
+            bar.update(1)
+            if flags:
+                bar.write(f"{scenario_id}: {flags[0].line()}" + _more(len(flags) - 1))
+
+        checked = pipeline.check_experts(args.data, workers, done)
+        bar.update(total - bar.n)
+    flagged = {i: f for i, f in checked.items() if f}
+    rules = Counter(f[0].rule for f in flagged.values())
+    why = ", ".join(f"{n} {rule}" for rule, n in rules.most_common())
+    left_out = f" ({why}): left out of splits unless drivee2e split --keep-flagged"
+    print(
+        f"expert replay: {len(checked) - len(flagged)} of {len(checked)} clips driven cleanly, "
+        f"{len(flagged)} flagged{left_out if flagged else ''}"
+    )
+    return 0
+
+
+def _more(count: int) -> str:
+    return f" (and {count} more)" if count else ""
+
+
+def _print_curation(rows: list) -> None:  # type: ignore[type-arg]
     header = ("scenario", "ego", "ego from", "behaviour", "dropped", "repaired")
     table = [
         (
@@ -210,7 +267,6 @@ def run_curate(args: argparse.Namespace) -> int:
     reasons = Counter(r.ego_source.removeprefix("none: ") for r in rows if r.ego_id is None)
     without = "".join(f"; {n} without an ego: {reason}" for reason, n in reasons.most_common())
     print(f"{len(rows)} clips curated, {labelled} labelled{without}")
-    return 0
 
 
 def _occlusion(args: argparse.Namespace) -> int:
@@ -263,8 +319,12 @@ def run_scenarios(args: argparse.Namespace) -> int:
 
 
 def run_split(args: argparse.Namespace) -> int:
-    path, rows = splits.split_root(args.data, args.name, args.seed)
+    path, rows, left_out = splits.split_root(args.data, args.name, args.seed, args.keep_flagged)
     table = splits.counts_table(rows)
     _print_table(table[0], table[1:])
     print(f"wrote {path}: {len(rows)} clips")
+    if left_out:
+        reasons = Counter(left_out.values())
+        why = "; ".join(f"{n} {reason}" for reason, n in reasons.most_common())
+        print(f"{len(left_out)} clips left out ({why}); --keep-flagged keeps them")
     return 0

@@ -72,6 +72,9 @@ class EpisodeResult:
     wall_seconds: float
     failure: str = ""
     trace: list[StepRecord] = field(default_factory=list)
+    # the first step driven outside the route's lanes, and off the road (-1: never)
+    outside_first_step: int = -1
+    off_road_first_step: int = -1
 
 
 def logged_route(motion: EgoMotion) -> NDArray[np.float64]:
@@ -162,7 +165,7 @@ class Episode:
         except Exception as error:  # the agent's own code: its bug ends its episode only
             failure = f"setup raised {type(error).__name__}: {error}"
         progress = RouteProgress(self.route_xy)
-        controller = WaypointController()
+        controller = WaypointController(self.bicycle.wheelbase_m)
         max_steps = math.ceil(
             (frames - 1) * rules.ROUTE_TIMEOUT_FACTOR + rules.ROUTE_TIMEOUT_MARGIN_S / STEP_S
         )
@@ -180,6 +183,7 @@ class Episode:
         red_lines: set[str] = set()
         stopped = 0
         driven = outside = off_road = 0.0
+        outside_first = off_road_first = -1
         trace: list[StepRecord] = []
         step = 0
         while not failure:
@@ -228,10 +232,16 @@ class Episode:
                 if line_id not in red_lines:
                     red_lines.add(line_id)
                     events.append(Event(Infraction.RED_LIGHT, step, line_id))
-            lane = self.rules.lane_status(ego_centre, state.yaw_rad)
+            wheels = rules.wheel_points(
+                state.xy_m, state.yaw_rad, self.bicycle.wheelbase_m, self.bicycle.width_m
+            )
+            lane = self.rules.lane_status(ego_centre, state.yaw_rad, wheels)
             if lane in ("off_road", "wrong_lane"):
                 outside += moved
                 off_road += moved if lane == "off_road" else 0.0
+                outside_first = step if outside_first < 0 else outside_first
+                if lane == "off_road" and off_road_first < 0:
+                    off_road_first = step
             _reached, distance = progress.update(state.xy_m)
             if progress.completion_percent >= 100.0:
                 if step > late_step:
@@ -281,6 +291,8 @@ class Episode:
             wall_seconds=time.perf_counter() - start,
             failure=failure,
             trace=trace,
+            outside_first_step=outside_first,
+            off_road_first_step=off_road_first,
         )
 
     def _ego_lw(self) -> tuple[float, float]:

@@ -22,7 +22,8 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.binding import holding_signals
-from drivee2e_data.geometry import box_corners_2d, boxes_overlap, polyline_arclength, wrap_angle
+from drivee2e_data.collision import boxes_collide
+from drivee2e_data.geometry import polyline_arclength, wrap_angle
 from drivee2e_data.hdmap import IntersectionMap, LaneType, line_heading_at
 from drivee2e_data.scenario import AgentClass, SignalState
 
@@ -46,6 +47,11 @@ AT_FAULT_MIN_SPEED_MPS = 0.2
 # lane membership: a lane's polygon grown by this, its heading within this of the ego's
 LANE_TOLERANCE_M = 0.3
 LANE_HEADING_TOLERANCE_RAD = np.deg2rad(60.0)
+# driving over a kerb: a wheel's contact point (the box's corners taken in by the inset, at the
+# axles) outside the drivable area by more than the tolerance. Mapped kerb lines and logged boxes
+# both carry noise of about this size in real data (docs/curation.md, the expert-replay check)
+WHEEL_INSET_M = 0.2
+OFF_ROAD_TOLERANCE_M = 0.25
 # progress is searched this far back and ahead of the last progress (U-turns come back near
 # their start; a global nearest point would jump there)
 PROGRESS_BACK_M = 5.0
@@ -127,20 +133,21 @@ def colliding(
     ego_speed_mps: float,
     obstacles: Sequence[Obstacle],
 ) -> list[Obstacle]:
-    """The obstacles whose box overlaps the ego's box and whose collision is the ego's fault:
+    """The obstacles whose box overlaps the ego's box (`collision.boxes_collide`, the definition
+    staging shares) and whose collision is the ego's fault:
     not while the ego stands still, not when the partner's centre is behind the ego's rear
     bumper (a replayed agent cannot brake for an ego that lags its logged self)."""
     if not obstacles:
         return []
-    ego = box_corners_2d(ego_centre_xy_m, np.float64(ego_yaw_rad), *map(np.float64, ego_size_m))
     centres = np.array([o.centre_xy_m for o in obstacles])
-    corners = box_corners_2d(
+    hit = boxes_collide(
+        np.asarray(ego_centre_xy_m, np.float64),
+        np.float64(ego_yaw_rad),
+        np.asarray(ego_size_m, np.float64),
         centres,
         np.array([o.yaw_rad for o in obstacles]),
-        np.array([o.length_m for o in obstacles]),
-        np.array([o.width_m for o in obstacles]),
+        np.array([(o.length_m, o.width_m) for o in obstacles]),
     )
-    hit = boxes_overlap(ego[None], corners)
     if not hit.any() or ego_speed_mps < AT_FAULT_MIN_SPEED_MPS:
         return []
     along = (centres - ego_centre_xy_m) @ np.array([np.cos(ego_yaw_rad), np.sin(ego_yaw_rad)])
@@ -223,6 +230,14 @@ class MapRules:
         self.lane_polygons = [lane.polygon().buffer(LANE_TOLERANCE_M) for lane in lanes]
         self.lane_lines = [shapely.LineString(lane.centerline_m[:, :2]) for lane in lanes]
         self.lane_in_junction = [lane.is_intersection for lane in lanes]
+        self.junctions = junction_areas(
+            [
+                p
+                for p, inside in zip(self.lane_polygons, self.lane_in_junction, strict=True)
+                if inside
+            ]
+        )
+        shapely.prepare(self.junctions)
         self.lane_tree = shapely.STRtree(self.lane_polygons)
         by_id = {lane.lane_id: k for k, lane in enumerate(lanes)}
         route = list(route_lane_ids)
@@ -246,11 +261,30 @@ class MapRules:
             for o in intersection_map.static_obstacles
         ]
 
-    def lane_status(self, xy_m: NDArray[np.float64], yaw_rad: float) -> str:
-        """'off_road' outside the drivable area; 'junction' on a junction lane (not checked for
-        direction, as CARLA does not); 'lane' in a lane heading the ego's way; 'wrong_lane'."""
+    def wheels_off_road(self, wheels_xy_m: NDArray[np.float64]) -> bool:
+        """Whether any wheel `(K, 2)` (world) stands outside the drivable area by more than
+        `OFF_ROAD_TOLERANCE_M`: on a kerb, a sidewalk or beyond."""
+        wheels = np.asarray(wheels_xy_m, np.float64).reshape(-1, 2)
+        outside = ~shapely.contains_xy(self.drivable, wheels[:, 0], wheels[:, 1])
+        if not outside.any():
+            return False
+        points = shapely.points(wheels[outside])
+        return bool((shapely.distance(self.drivable, points) > OFF_ROAD_TOLERANCE_M).any())
+
+    def lane_status(
+        self,
+        xy_m: NDArray[np.float64],
+        yaw_rad: float,
+        wheels_xy_m: NDArray[np.float64] | None = None,
+    ) -> str:
+        """'off_road' with the centre `xy_m` outside the drivable area or a wheel over its edge
+        (`wheels_off_road`); 'junction' on a junction lane or between them, inside a junction's
+        hull (not checked for direction, as CARLA does not); 'lane' in a lane heading the ego's
+        way; 'wrong_lane'."""
         point = shapely.Point(float(xy_m[0]), float(xy_m[1]))
         if not self.drivable.contains(point):
+            return "off_road"
+        if wheels_xy_m is not None and self.wheels_off_road(wheels_xy_m):
             return "off_road"
         same_direction = False
         for index in self.lane_tree.query(point, predicate="intersects"):
@@ -261,7 +295,10 @@ class MapRules:
                 <= LANE_HEADING_TOLERANCE_RAD
             ):
                 same_direction = True  # fmt: skip
-        return "lane" if same_direction else "wrong_lane"
+        if same_direction:
+            return "lane"
+        # between a junction's lanes (a U-turn the map has no lane for) is the junction still
+        return "junction" if self.junctions.contains(point) else "wrong_lane"
 
     def red_lights_crossed(
         self,
@@ -287,6 +324,28 @@ class MapRules:
                     crossed.append(stop.stop_line_id)
                     break
         return crossed
+
+
+def junction_areas(junction_lanes: Sequence[shapely.Geometry]) -> shapely.Geometry:
+    """The junctions' areas: the convex hull of each group of touching junction lane polygons
+    (CARLA checks no lane inside a junction's bounds, and neither does this)."""
+    if not junction_lanes:
+        return shapely.Polygon()
+    merged = shapely.union_all(junction_lanes)
+    return shapely.union_all([part.convex_hull for part in getattr(merged, "geoms", [merged])])
+
+
+def wheel_points(
+    rear_axle_xy_m: NDArray[np.float64], yaw_rad: float, wheelbase_m: float, width_m: float
+) -> NDArray[np.float64]:
+    """(4, 2) the contact points of a car's wheels in the world: the rear axle at
+    `rear_axle_xy_m`, the front axle `wheelbase_m` ahead along `yaw_rad`, each wheel
+    `WHEEL_INSET_M` in from the box's side."""
+    forward = np.array([np.cos(yaw_rad), np.sin(yaw_rad)])
+    left = np.array([-forward[1], forward[0]])
+    half_track = max(0.5 * width_m - WHEEL_INSET_M, 0.0)
+    axles = np.asarray(rear_axle_xy_m, np.float64) + np.outer([0.0, wheelbase_m], forward)
+    return np.concatenate([axles + half_track * left, axles - half_track * left])
 
 
 def longest_stop_s(speed_mps: NDArray[np.float64], step_s: float = 0.1) -> float:

@@ -19,12 +19,12 @@ from drivee2e_data.ego_limits import (  # the same limits as the simulator's car
     FULL_BRAKE_MPS2,
     FULL_THROTTLE_MPS2,
     MAX_STEER_RAD,
+    REAR_AXLE_SHARE,
     WHEELBASE_SHARE,
 )
 from drivee2e_data.scenario import Scenario, Track
 from drivee2e_data.sensors.imu_gnss import imu
 
-REAR_AXLE_SHARE = 0.3  # the rear axle sits 0.3 lengths behind the box centre
 STEER_MIN_SPEED_MPS = 1.0  # below this the yaw rate says little about the wheel angle
 # the command looks 3 s ahead, as nuScenes-trained planners do (ego_fut_cmd)
 COMMAND_HORIZON_FRAMES = 30

@@ -1,6 +1,6 @@
 """The closed-loop ego: a kinematic bicycle moved by controls, and the controllers that turn
-planned waypoints into controls (a longitudinal PID on speed, a lateral PID on the heading to an
-aim point on the plan).
+planned waypoints into controls (a longitudinal PID on speed; laterally, pure pursuit of an aim
+point on the plan: the wheel angle whose arc from the rear axle passes through the aim point).
 
 Frames and units: world = the map's local ENU (metres, radians); the state's position is the
 rear-axle centre, as the nuScenes ego frame; waypoints are `(N, 2)` in the ego frame at 2 Hz.
@@ -30,6 +30,9 @@ ROLLING_RESISTANCE_MPS2 = 0.15  # the car coasts to a stop without throttle
 STOP_SPEED_MPS = 0.4  # a planned speed below this is a stop: full hold brake
 AIM_MIN_M = 3.0  # lateral aim point at least this far ahead, farther with speed
 AIM_TIME_S = 0.9
+# the wheel's angle rate damps the pure-pursuit command (normalised steer per rad/s of aim angle)
+AIM_DAMPING_S = 0.03
+DEFAULT_WHEELBASE_M = WHEELBASE_SHARE * 4.6  # a typical car's, when the caller names none
 
 
 @dataclass(frozen=True)
@@ -135,10 +138,15 @@ class PID:
 class WaypointController:
     """Controls that follow 2 Hz ego-frame waypoints: the planned speed is the distance to the
     first waypoint over its 0.5 s (a stop when below `STOP_SPEED_MPS`); the aim point lies on
-    the plan `max(AIM_MIN_M, AIM_TIME_S * speed)` ahead."""
+    the plan `max(AIM_MIN_M, AIM_TIME_S * speed)` ahead, and the wheels take the pure-pursuit
+    angle to it, `atan(2 wheelbase sin(alpha) / distance)`, for the car's `wheelbase_m`.
 
+    Pure pursuit holds an arc of any radius the wheels allow exactly; a gain on the aim angle
+    alone (this controller's first form) steered half the angle a 5 m U-turn needs at walking
+    pace and swung the car wide, into the kerb (docs/closedloop.md)."""
+
+    wheelbase_m: float = DEFAULT_WHEELBASE_M
     longitudinal: PID = field(default_factory=lambda: PID(0.45, 0.15, 0.02, integral_limit=2.0))
-    lateral: PID = field(default_factory=lambda: PID(1.4, 0.0, 0.08))
 
     def control(self, waypoints_xy_m: NDArray[np.float64], state: VehicleState) -> Control:
         waypoints = np.asarray(waypoints_xy_m, np.float64).reshape(-1, 2)
@@ -153,8 +161,12 @@ class WaypointController:
             throttle = max(acceleration, 0.0)
             brake = max(-acceleration, 0.0) * FULL_THROTTLE_MPS2 / FULL_BRAKE_MPS2
         aim = aim_point(waypoints, max(AIM_MIN_M, AIM_TIME_S * state.speed_mps))
-        angle = float(np.arctan2(aim[1], aim[0])) if np.hypot(*aim) > 0.5 else 0.0
-        steer = self.lateral(angle) if planned_speed >= STOP_SPEED_MPS else 0.0
+        distance = float(np.hypot(*aim))
+        steer = 0.0
+        if distance > 0.5 and planned_speed >= STOP_SPEED_MPS:
+            angle = float(np.arctan2(aim[1], aim[0]))
+            wheel_rad = float(np.arctan2(2.0 * self.wheelbase_m * np.sin(angle), distance))
+            steer = wheel_rad / MAX_STEER_RAD
         return Control(steer, throttle, brake).clipped()
 
 

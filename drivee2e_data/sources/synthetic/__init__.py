@@ -35,7 +35,7 @@ from drivee2e_data.sources.synthetic.traffic import PedestrianSpec, SimResult, V
 from drivee2e_data.sun import time_of_day_of
 
 SOURCE_NAME = "synthetic"
-GENERATOR_VERSION = 2  # 2: the time-of-day label is the one the sun earns (drivee2e_data.sun)
+GENERATOR_VERSION = 3  # 3: kerbs around the turns, U-turns that fit, the expert's margin in staging
 UTC_OFFSET_H = 8  # the synthetic sites sit near Beijing (UTC+8), like V2X-Seq's
 # Targets in the order clips take them: the eight categories come first, then the other six.
 TARGET_ORDER = (

@@ -13,7 +13,9 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
-from drivee2e_data.geometry import cubic_bezier, resample_polyline, wrap_angle
+from drivee2e_data.collision import EXPERT_TRACKING_MARGIN_M
+from drivee2e_data.ego_limits import MAX_STEER_RAD, REAR_AXLE_SHARE, WHEELBASE_SHARE
+from drivee2e_data.geometry import box_corners_2d, cubic_bezier, resample_polyline, wrap_angle
 from drivee2e_data.hdmap import (
     Area,
     Building,
@@ -30,6 +32,8 @@ from drivee2e_data.hdmap import (
     Tree,
     TurnDirection,
 )
+from drivee2e_data.scenario import AgentClass
+from drivee2e_data.sources.common import TYPICAL_SIZE_M
 
 LANE_WIDTH_M = 3.5
 SIDEWALK_WIDTH_M = 4.0
@@ -38,8 +42,32 @@ CROSSWALK_WIDTH_M = 4.0
 STOP_LINE_GAP_M = 1.0  # stop line sits this far before the crosswalk
 ARM_LENGTH_M = 200.0
 CONNECTOR_SPACING_M = 0.5
-U_TURN_RADIUS_M = 5.0  # a car's path radius for a U-turn without reversing
 SPEED_LIMIT_MPS = 50 / 3.6
+# vehicles are drawn up to this share of their class's typical size (`population.sized`)
+MAX_SIZE_SCALE = 1.08
+# The junction's kerbs are drawn around the swept path of its design vehicle on every turn and
+# straight, plus a clearance, as road designers draw corner radii around a design vehicle's
+# turning path: the largest ego (a van), so an ego's logged drive never crosses a kerb.
+DESIGN_VEHICLE_M = tuple(MAX_SIZE_SCALE * v for v in TYPICAL_SIZE_M[AgentClass.VAN][:2])
+TURN_KERB_CLEARANCE_M = 0.3
+# U-turns are made by cars only (`population`), on a loop the largest car follows with its
+# wheels at no more than this share of their lock, its swept box this far inside the kerbs
+# (the closed-loop expert's tracking margin: pedestrians wait at the kerb); a U-turn that no
+# loop fits is not offered on that arm.
+U_TURN_VEHICLE_M = tuple(MAX_SIZE_SCALE * v for v in TYPICAL_SIZE_M[AgentClass.CAR][:2])
+U_TURN_STEER_SHARE = 0.85
+U_TURN_KERB_CLEARANCE_M = EXPERT_TRACKING_MARGIN_M
+U_TURN_RADIUS_STEPS_M = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0)  # added to the smallest radius
+U_TURN_DEPTHS_M = (0.0, 2.0, 4.0, 6.0, 8.0)  # extra depth of the loop into the junction
+
+
+def u_turn_min_radius_m(length_m: float = U_TURN_VEHICLE_M[0]) -> float:
+    """The smallest loop radius (m, of the box centre's path) a car `length_m` long follows
+    with its wheels at `U_TURN_STEER_SHARE` of their lock: its rear axle, `REAR_AXLE_SHARE`
+    lengths behind the centre, turns on the kinematic bicycle's radius."""
+    wheelbase = WHEELBASE_SHARE * length_m
+    rear_radius = wheelbase / np.tan(U_TURN_STEER_SHARE * MAX_STEER_RAD)
+    return float(np.hypot(rear_radius, REAR_AXLE_SHARE * length_m))
 
 
 @dataclass(frozen=True)
@@ -149,12 +177,14 @@ def generate_layout(map_id: str, rng: np.random.Generator) -> Layout:
     protected_axis = int(rng.integers(len(axes)))
     protected_left = tuple(k == protected_axis for k in range(len(axes)))
     movements = _movements(arms, axes, protected_left)
+    road = _road_polygon(arms, movements)
+    movements = (*movements, *_u_turns(arms, axes, protected_left, road))
     origin = GeoOrigin(
         latitude_deg=float(39.75 + rng.uniform(-0.1, 0.1)),
         longitude_deg=float(116.5 + rng.uniform(-0.1, 0.1)),
         altitude_m=float(rng.uniform(30, 60)),
     )
-    intersection_map = _build_map(map_id, origin, arms, axes, protected_left, movements, rng)
+    intersection_map = _build_map(map_id, origin, arms, axes, protected_left, movements, road, rng)
     return Layout(intersection_map, arms, movements, axes, protected_left)
 
 
@@ -244,24 +274,74 @@ def _movements(
                 out_lane = last if turn == TurnDirection.RIGHT else min(rank, last)
                 signal = left_signal if turn == TurnDirection.LEFT else through_signal_id(arm.index)
                 movements.append(_movement(arm, lane, target, out_lane, turn, signal))
-        # The leftmost lane may U-turn into the outermost outgoing lane of its own arm; any other
-        # lane doing so is abnormal and has no connector in the map.
-        movements.append(
-            _movement(arm, 0, arm, arm.lanes_out - 1, TurnDirection.U_TURN, left_signal)
-        )
-        if arm.lanes_in > 1:
-            movements.append(
-                _movement(
-                    arm,
-                    arm.lanes_in - 1,
-                    arm,
-                    arm.lanes_out - 1,
-                    TurnDirection.U_TURN,
-                    through_signal_id(arm.index),
-                    abnormal=True,
-                )
-            )
     return tuple(movements)
+
+
+def _u_turns(
+    arms: tuple[Arm, ...],
+    axes: tuple[tuple[int, ...], ...],
+    protected_left: tuple[bool, ...],
+    road: shapely.Polygon,
+) -> tuple[Movement, ...]:
+    """U-turns where a loop fits the junction (`_fitting_u_turn`): from each arm's leftmost
+    lane on its left-turn signal; from its rightmost lane too when there are two or more, an
+    abnormal movement that the map does not carry."""
+    inside = road.buffer(-U_TURN_KERB_CLEARANCE_M)
+    shapely.prepare(inside)
+    movements = []
+    for arm in arms:
+        axis = next(k for k, group in enumerate(axes) if arm.index in group)
+        left_signal = (
+            left_signal_id(arm.index) if protected_left[axis] else through_signal_id(arm.index)
+        )
+        lanes = [(0, left_signal, False)]
+        if arm.lanes_in > 1:
+            lanes.append((arm.lanes_in - 1, through_signal_id(arm.index), True))
+        for lane, signal, abnormal in lanes:
+            movement = _fitting_u_turn(arm, lane, signal, abnormal, inside)
+            if movement is not None:
+                movements.append(movement)
+    return tuple(movements)
+
+
+def _fitting_u_turn(
+    arm: Arm, lane: int, signal_id: str, abnormal: bool, inside: shapely.Geometry
+) -> Movement | None:
+    """The first U-turn from `lane` whose loop the largest car sweeps inside the kerbs less the
+    clearance (`inside`): into the outermost outgoing lane first, the smallest radius first,
+    the loop as shallow as it fits."""
+    smallest = u_turn_min_radius_m()
+    for out_lane in range(arm.lanes_out - 1, -1, -1):
+        for extra in U_TURN_RADIUS_STEPS_M:
+            for depth in U_TURN_DEPTHS_M:
+                movement = _movement(
+                    arm, lane, arm, out_lane, TurnDirection.U_TURN, signal_id, abnormal,
+                    u_turn=(smallest + extra, depth),
+                )  # fmt: skip
+                if sweeps_inside(movement.path_m, U_TURN_VEHICLE_M, inside):
+                    return movement
+    return None
+
+
+def swept_boxes(path_m: NDArray[np.float64], size_m: tuple[float, float]) -> NDArray[np.float64]:
+    """(N, 4, 2) the boxes of a vehicle `size_m` (length, width) centred on each point of
+    `path_m` (N, 2), turned along the path, as the traffic simulation moves it."""
+    heading = np.arctan2(np.gradient(path_m[:, 1]), np.gradient(path_m[:, 0]))
+    count = len(path_m)
+    return box_corners_2d(path_m, heading, np.full(count, size_m[0]), np.full(count, size_m[1]))
+
+
+def sweeps_inside(
+    path_m: NDArray[np.float64], size_m: tuple[float, float], area: shapely.Geometry
+) -> bool:
+    """Whether every box along `path_m` lies inside `area` (its outline sampled every 0.25 m,
+    so a kerb corner poking between two corners is seen)."""
+    boxes = swept_boxes(path_m, size_m)
+    edges = np.roll(boxes, -1, axis=1) - boxes
+    share = np.linspace(0.0, 1.0, int(np.ceil(max(size_m) / 0.25)), endpoint=False)
+    points = boxes[:, :, None, :] + share[None, None, :, None] * edges[:, :, None, :]
+    points = points.reshape(-1, 2)
+    return bool(shapely.contains_xy(area, points[:, 0], points[:, 1]).all())
 
 
 def _movement(
@@ -272,12 +352,15 @@ def _movement(
     turn: TurnDirection,
     signal_id: str,
     abnormal: bool = False,
+    u_turn: tuple[float, float] = (0.0, 0.0),
 ) -> Movement:
+    """The movement from `arm`'s incoming `lane` to `target`'s outgoing `out_lane`; a U-turn's
+    loop has the radius and extra depth `u_turn` (m)."""
     start = arm.point(arm.stop_m, arm.incoming_offset(lane))
     end = target.point(target.stop_m, target.outgoing_offset(out_lane))
     heading_in, heading_out = -arm.u, target.u
     if turn == TurnDirection.U_TURN:
-        path = _u_turn_path(arm, start, end)
+        path = _u_turn_path(arm, start, end, *u_turn)
     else:
         reach = 0.4 * float(np.linalg.norm(end - start))
         path = cubic_bezier(start, start + reach * heading_in, end - reach * heading_out, end, 200)
@@ -299,15 +382,21 @@ def _movement(
 
 
 def _u_turn_path(
-    arm: Arm, start: NDArray[np.float64], end: NDArray[np.float64]
+    arm: Arm,
+    start: NDArray[np.float64],
+    end: NDArray[np.float64],
+    radius_m: float,
+    depth_m: float = 0.0,
 ) -> NDArray[np.float64]:
-    """Into the junction, swing right if the lanes are too close for the radius, loop back left."""
+    """Into the junction (`depth_m` further than the shortest entry), swing right if the lanes
+    are too close for the radius, loop back left on `radius_m` (at least half the lanes'
+    distance), and drive out straight."""
     lateral_start = float(start @ arm.n)
     lateral_end = float(end @ arm.n)
-    radius = max(U_TURN_RADIUS_M, 0.5 * (lateral_start - lateral_end))
+    radius = max(radius_m, 0.5 * (lateral_start - lateral_end))
     loop_start_lateral = lateral_end + 2 * radius
     shift = loop_start_lateral - lateral_start
-    entry_length = 4.0 + 1.4 * shift
+    entry_length = 4.0 + 1.4 * shift + depth_m
     loop_along = arm.stop_m - entry_length
     entry = cubic_bezier(
         start,
@@ -395,6 +484,7 @@ def _build_map(
     axes: tuple[tuple[int, ...], ...],
     protected_left: tuple[bool, ...],
     movements: tuple[Movement, ...],
+    road: shapely.Polygon,
     rng: np.random.Generator,
 ) -> IntersectionMap:
     mapped = [m for m in movements if m.lane_id is not None]
@@ -437,7 +527,6 @@ def _build_map(
             )
     lanes.extend(_connector_lane(m) for m in mapped)
 
-    road = _road_polygon(arms)
     crosswalks, stop_lines, heads = [], [], []
     for arm in arms:
         width_out, width_in = arm.lanes_out * LANE_WIDTH_M, arm.lanes_in * LANE_WIDTH_M
@@ -495,7 +584,9 @@ def _build_map(
     )
 
 
-def _road_polygon(arms: tuple[Arm, ...]) -> shapely.Polygon:
+def _road_polygon(arms: tuple[Arm, ...], movements: tuple[Movement, ...]) -> shapely.Polygon:
+    """The carriageway: every arm, the junction's core between them, and the swept path of the
+    design vehicle on every movement with its clearance (the corners' kerb lines)."""
     pieces = []
     for arm in arms:
         pieces.append(
@@ -515,7 +606,13 @@ def _road_polygon(arms: tuple[Arm, ...]) -> shapely.Polygon:
             for side, k in ((-1, arm.lanes_out), (1, arm.lanes_in))
         ]
     ).convex_hull
-    road = shapely.union_all([*pieces, core])
+    swept = [
+        shapely.union_all(shapely.polygons(swept_boxes(m.path_m, DESIGN_VEHICLE_M))).buffer(
+            TURN_KERB_CLEARANCE_M, quad_segs=4
+        )
+        for m in movements
+    ]
+    road = shapely.union_all([*pieces, core, *swept])
     return shapely.Polygon(road.exterior)
 
 

@@ -11,6 +11,7 @@ from drivee2e_data.sources.common import TYPICAL_SIZE_M
 from drivee2e_data.sources.synthetic.layout import (
     CROSSWALK_WIDTH_M,
     LANE_WIDTH_M,
+    MAX_SIZE_SCALE,
     Arm,
     Layout,
     Movement,
@@ -45,13 +46,16 @@ TURN_WEIGHT = {
     TurnDirection.U_TURN: 0.03,
 }
 YELLOW_RUNNER_SHARE = 0.08
+# a pedestrian at a kerb stands this far behind its line (centre; 0.4 m clear for a 0.6 m box):
+# a turning car's corner passes close to the kerb, and people wait a step back from it
+KERB_WAIT_M = 0.7
 RIDERS = (AgentClass.CYCLIST, AgentClass.MOTORCYCLIST, AgentClass.TRICYCLIST)
 LARGE = (AgentClass.TRUCK, AgentClass.BUS)
 
 
 def sized(agent_class: AgentClass, rng: np.random.Generator) -> tuple[float, float, float]:
     base = TYPICAL_SIZE_M[agent_class]
-    scale = rng.uniform(0.92, 1.08, size=3)
+    scale = rng.uniform(2.0 - MAX_SIZE_SCALE, MAX_SIZE_SCALE, size=3)
     return (float(base[0] * scale[0]), float(base[1] * scale[1]), float(base[2] * scale[2]))
 
 
@@ -110,6 +114,8 @@ def background_vehicles(
 
 
 def _allowed(agent_class: AgentClass, movement: Movement, arm: Arm, lane: int) -> bool:
+    if movement.turn == TurnDirection.U_TURN:
+        return agent_class == AgentClass.CAR  # the loops are fitted to the largest car (layout)
     if agent_class in RIDERS:
         return lane == arm.lanes_in - 1 and movement.turn != TurnDirection.U_TURN
     if agent_class in LARGE:
@@ -145,7 +151,8 @@ def crossing_pedestrian(
     width_out, width_in = arm.lanes_out * LANE_WIDTH_M, arm.lanes_in * LANE_WIDTH_M
     start_side, end_side = (width_in, -width_out) if from_left else (-width_out, width_in)
     sign = np.sign(end_side)
-    lateral_start, lateral_end = start_side + 0.3 * np.sign(start_side), end_side + 0.3 * sign
+    lateral_start = start_side + KERB_WAIT_M * np.sign(start_side)
+    lateral_end = end_side + KERB_WAIT_M * sign
     back, onward = rng.uniform(2.0, 8.0), rng.uniform(6.0, 15.0)
     points = np.stack(
         [

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from drivee2e_data.geometry import box_corners_2d, boxes_overlap
+from drivee2e_data.collision import EXPERT_TRACKING_MARGIN_M, boxes_collide
 from drivee2e_data.hdmap import TurnDirection
 from drivee2e_data.scenario import AgentClass, SignalState, SubScenario
 from drivee2e_data.sources.synthetic.layout import CROSSWALK_WIDTH_M, Layout, Movement
@@ -156,6 +156,8 @@ def _attempt(
     horizon_s = clip_start_s + MAX_CLIP_S + 1.0
 
     ego_class = AgentClass.CAR if rng.random() < 0.8 else AgentClass.VAN
+    if turn == TurnDirection.U_TURN:
+        ego_class = AgentClass.CAR  # the loops are fitted to the largest car (layout)
     path = network.paths[movement.movement_id]
     ego = make_vehicle(
         "v9999", ego_class, movement, 0.0, rng, runs_yellow=target.category.value == "YLW"
@@ -309,7 +311,7 @@ def _simulate_and_repair(
             return None
         if (last - first) * STEP_S < MIN_CLIP_S:
             return None
-        clash = first_overlap(result, vehicles, pedestrians, first, last)
+        clash = first_overlap(result, vehicles, pedestrians, first, last, ego_row)
         if clash is None:
             observed = observe(result, network, vehicles, pedestrians, ego_row, first, last)
             return StagedClip(
@@ -336,11 +338,18 @@ def first_overlap(
     pedestrians: list[PedestrianSpec],
     first: int,
     last: int,
+    ego_row: int | None = None,
 ) -> tuple[int, int] | None:
-    """Rows of the first pair of boxes that overlap in steps [first, last], pedestrian pairs aside."""
+    """Rows of the first pair of agents that collide in steps [first, last] by the definition
+    the closed-loop rules use (`collision.boxes_collide`), pedestrian pairs aside; the ego's
+    box (row `ego_row`) is grown by `EXPERT_TRACKING_MARGIN_M`, the most its closed-loop
+    expert strays from the path staged here."""
     sizes = agent_box_sizes(vehicles, pedestrians)
     is_vehicle = np.arange(len(sizes)) < len(vehicles)
-    reach = 0.5 * np.hypot(sizes[:, 0], sizes[:, 1])
+    margin = np.zeros(len(sizes))
+    if ego_row is not None:
+        margin[ego_row] = EXPERT_TRACKING_MARGIN_M
+    reach = 0.5 * np.hypot(sizes[:, 0], sizes[:, 1]) + np.sqrt(2.0) * margin
     for step in range(first, last + 1):
         rows = np.flatnonzero(result.valid[:, step])
         xy = np.stack([result.x_m[rows, step], result.y_m[rows, step]], axis=-1)
@@ -351,19 +360,21 @@ def first_overlap(
         pair_i, pair_j = rows[pair_i[keep]], rows[pair_j[keep]]
         if pair_i.size == 0:
             continue
-        corners_i = box_corners_2d(
-            np.stack([result.x_m[pair_i, step], result.y_m[pair_i, step]], -1),
-            result.yaw_rad[pair_i, step],
-            sizes[pair_i, 0],
-            sizes[pair_i, 1],
+        # the grown box goes first: the pair's margin is the larger of the two (0 or the ego's)
+        grown_first = margin[pair_i] >= margin[pair_j]
+        row_a = np.where(grown_first, pair_i, pair_j)
+        row_b = np.where(grown_first, pair_j, pair_i)
+        hits = np.flatnonzero(
+            boxes_collide(
+                np.stack([result.x_m[row_a, step], result.y_m[row_a, step]], -1),
+                result.yaw_rad[row_a, step],
+                sizes[row_a],
+                np.stack([result.x_m[row_b, step], result.y_m[row_b, step]], -1),
+                result.yaw_rad[row_b, step],
+                sizes[row_b],
+                margin_a_m=margin[row_a],
+            )
         )
-        corners_j = box_corners_2d(
-            np.stack([result.x_m[pair_j, step], result.y_m[pair_j, step]], -1),
-            result.yaw_rad[pair_j, step],
-            sizes[pair_j, 0],
-            sizes[pair_j, 1],
-        )
-        hits = np.flatnonzero(boxes_overlap(corners_i, corners_j))
         if hits.size:
             return int(pair_i[hits[0]]), int(pair_j[hits[0]])
     return None
