@@ -25,6 +25,7 @@ import torch
 
 from drivee2e_data import store
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.loaders.cache import FeatureCache
 from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.metrics.openloop import CONVENTIONS, OpenLoopMetric
@@ -55,11 +56,22 @@ def _batches(
 
 
 def predict(
-    dataset: DriveE2EDataset, planner: Planner, on_samples: Callable[[int], None] | None = None
+    dataset: DriveE2EDataset | FeatureCache,
+    planner: Planner,
+    on_samples: Callable[[int], None] | None = None,
 ) -> pa.Table:
-    """Every sample's plan as a predictions table."""
+    """Every sample's plan as a predictions table: of a Dataset's samples, or of a feature
+    cache's (the same samples, its batches gathered from memory)."""
     columns: dict[str, list] = {name: [] for name in PREDICTION_SCHEMA.names}
-    for chunk, batch in _batches(dataset, list(range(len(dataset)))):
+    if isinstance(dataset, FeatureCache):
+        indices = list(range(len(dataset)))
+        chunks = [indices[k : k + BATCH] for k in range(0, len(indices), BATCH)]
+        batches: Iterable[tuple[list[int], dict[str, Any]]] = (
+            (chunk, dataset.rows(chunk)) for chunk in chunks
+        )
+    else:
+        batches = _batches(dataset, list(range(len(dataset))))
+    for chunk, batch in batches:
         plans = planner.plan(batch).double()
         for k, index in enumerate(chunk):
             scenario_id, frame = dataset.samples[index]

@@ -22,6 +22,7 @@ from drivee2e_data.agents import training
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Waypoints
+from drivee2e_data.loaders.cache import FeatureCache, FeatureSpec
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 
 HIDDEN = 512
@@ -77,37 +78,47 @@ class ADMLP(nn.Module):
         return self(features(batch)).double()
 
 
+FEATURES = FeatureSpec("ego")  # the ego's state, command and 2 Hz history: no image
+
+
+def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+    return {"x": features(batch)}
+
+
 def extract(
     dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
 ) -> dict[str, torch.Tensor]:
     """Features `x`, targets `y` and masks of every sample, in dataset order."""
-    return training.extract(dataset, lambda batch: {"x": features(batch)}, 256, progress)
+    return training.extract(dataset, inputs, 256, progress)
 
 
 def train(
-    dataset: DriveE2EDataset,
+    dataset: DriveE2EDataset | FeatureCache,
     checkpoint: Path,
     options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Train on every sample of `dataset` (built with `cameras=()`); returns the checkpoint."""
+    """Train on every sample of `dataset` (a Dataset built with `cameras=()`, or the split's
+    feature cache of `FEATURES`); returns the checkpoint."""
     options = options or TrainOptions()
     if len(dataset) == 0:
         raise DriveE2EError(
             f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
         )
-    data = extract(dataset, on_sample)
+    rows = training.in_memory(training.source(dataset, inputs, 256, on_sample))
+    data = rows.data
     torch.manual_seed(options.seed)
     model = ADMLP(data["x"].shape[1], data["y"].shape[1])
     # continuous features are standardised; a spread under 0.1 (m, m/s, rad/s) counts as 0.1,
     # so a feature constant in training (no yaw rate on straight clips) is not blown up 1000-fold
     # where it varies at test time. Masks and the one-hot command stay 0/1 as they are.
-    continuous = continuous_features(dataset.horizons.history_steps)
+    # per history step two positions and a mask, then the status (10) and the command (3)
+    continuous = continuous_features((data["x"].shape[1] - 13) // 3)
     model.mean[continuous] = data["x"][:, continuous].mean(0)
     model.scale[continuous] = data["x"][:, continuous].std(0).clamp_min(MIN_SCALE)
     header = {"kind": ADMLP.name, "inputs": model.mean.shape[0], "steps": model.steps}
-    return fit(model, data, lambda m, rows: m(rows["x"]), checkpoint, options, header, on_epoch)
+    return fit(model, rows, lambda m, rows: m(rows["x"]), checkpoint, options, header, on_epoch)
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:

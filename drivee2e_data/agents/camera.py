@@ -21,12 +21,15 @@ from drivee2e_data.agents import training
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
+from drivee2e_data.loaders.cache import EGO_FIELDS, FeatureCache, FeatureSpec
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.sensors.rig import Rig
 
 FRONT_CAMERAS = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
 INPUT_SIZE = (128, 72)  # width, height fed to the network
+# what the policy reads, declared once: its training cache and its closed-loop cameras
+FEATURES = FeatureSpec("camera", EGO_FIELDS, FRONT_CAMERAS, INPUT_SIZE)
 SPEED_SCALE_MPS = 10.0
 TARGET_SCALE_M = 20.0
 PIXEL_MEAN, PIXEL_STD = 0.45, 0.25
@@ -128,43 +131,54 @@ def observation_inputs(
     return torch.from_numpy(images)[None], vector
 
 
-def trainable_size(dataset: DriveE2EDataset, input_size: tuple[int, int], name: str) -> list[int]:
+def trainable_size(
+    dataset: DriveE2EDataset | FeatureCache, input_size: tuple[int, int], name: str
+) -> list[int]:
     """The full camera size of `dataset`'s logs, once it is checked to hold samples of the
-    front cameras at `input_size` (`dataset_for`), for policy `name`."""
+    front cameras at `input_size` (`dataset_for`, or the policy's feature cache), for policy
+    `name`."""
     if len(dataset) == 0:
         raise DriveE2EError(
             f"{dataset.manifest}: split {dataset.split!r} has no samples to train on"
         )
-    if tuple(dataset.cameras) != FRONT_CAMERAS or dataset.image_size != input_size:
+    if isinstance(dataset, FeatureCache):
+        cameras, image_size = dataset.spec.cameras, dataset.spec.image_size
+    else:
+        cameras, image_size = tuple(dataset.cameras), dataset.image_size
+    if cameras != FRONT_CAMERAS or image_size != input_size:
         raise DriveE2EError(f"the {name} policy trains on {name}.dataset_for(...) samples")
+    if isinstance(dataset, FeatureCache):
+        return list(dataset.camera_full_size())
     first = dataset.samples[0][0]
     return list(dataset.log_info[first]["cameras"][FRONT_CAMERAS[1]]["full_size"])
+
+
+def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+    """The policy's inputs of a batch: the front images and the measurement vector."""
+    return {"images": batch["img"], "vector": batch_vector(batch)}
 
 
 def extract(
     dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
 ) -> dict[str, torch.Tensor]:
     """Images, vector features, targets `y` and masks of every sample, in dataset order."""
-
-    def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
-        return {"images": batch["img"], "vector": batch_vector(batch)}
-
     return training.extract(dataset, inputs, 64, progress)
 
 
 def train(
-    dataset: DriveE2EDataset,
+    dataset: DriveE2EDataset | FeatureCache,
     checkpoint: Path,
     options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Train on every sample of `dataset` (from `dataset_for`); returns the checkpoint."""
+    """Train on every sample of `dataset` (from `dataset_for`, or the split's feature cache of
+    `FEATURES`); returns the checkpoint."""
     options = options or TrainOptions(epochs=40, batch_size=32)
     full_size = trainable_size(dataset, INPUT_SIZE, CameraPolicy.name)
-    data = extract(dataset, on_sample)
+    data = training.source(dataset, inputs, 64, on_sample)
     torch.manual_seed(options.seed)
-    model = CameraPolicy(len(FRONT_CAMERAS), data["y"].shape[1])
+    model = CameraPolicy(len(FRONT_CAMERAS), int(data.rows(torch.arange(1))["y"].shape[1]))
     header = {"kind": CameraPolicy.name, "steps": model.steps, "camera_size": full_size}
     return fit(
         model,

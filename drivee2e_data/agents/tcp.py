@@ -27,6 +27,7 @@ from drivee2e_data.agents.resnet import RESNET18_BLOCKS, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
+from drivee2e_data.loaders.cache import EGO_FIELDS, FeatureCache, FeatureSpec
 from drivee2e_data.loaders.dataset import DriveE2EDataset
 from drivee2e_data.sensors.rig import Rig
 
@@ -34,6 +35,8 @@ from drivee2e_data.sensors.rig import Rig
 # side are 768 x 144, a 1/6.25 scale of the 1600 x 900 cameras (a JPEG read at 1/4 in the DCT,
 # then area-resized)
 INPUT_SIZE = (256, 144)
+# what the policy reads, declared once: its training cache and its closed-loop cameras
+FEATURES = FeatureSpec("tcp", EGO_FIELDS, FRONT_CAMERAS, INPUT_SIZE)
 SPEED_LOSS_WEIGHT = 0.05  # TCP's weight of the speed head's L1 beside the waypoints'
 GRU_HIDDEN = 256
 TARGET_SCALE_M = 20.0  # the GRU's target-point input, as the measurement vector scales it
@@ -78,7 +81,10 @@ class TCPPolicy(nn.Module):
             self.augment_step += 1
             gain = torch.empty(batch * cameras, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
             pixels = (pixels * gain.to(pixels.device)).clamp(0.0, 1.0)
-        features = self.trunk((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)
+        normalised = (pixels - PIXEL_MEAN) / PIXEL_STD
+        if normalised.is_cuda:  # the convolutions' fast layout there
+            normalised = normalised.contiguous(memory_format=torch.channels_last)
+        features = self.trunk(normalised).view(batch, -1)
         seen = self.image(features)
         hidden = self.join(torch.cat([seen, self.measurements(vector)], 1))
         target_m = vector[:, 4:6] * TARGET_SCALE_M
@@ -97,15 +103,16 @@ def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2E
     return camera.dataset_for(root, split, split_name, INPUT_SIZE)
 
 
+def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
+    """The policy's inputs of a batch: images, measurement vector, and the speed (its target)."""
+    speed = batch["ego_status"][:, 6].float()
+    return {"images": batch["img"], "vector": camera.batch_vector(batch), "speed": speed}
+
+
 def extract(
     dataset: DriveE2EDataset, progress: Callable[[int], None] | None = None
 ) -> dict[str, torch.Tensor]:
     """Images, measurement vectors, speeds, targets `y` and masks of every sample, in order."""
-
-    def inputs(batch: dict[str, Any]) -> dict[str, torch.Tensor]:
-        speed = batch["ego_status"][:, 6].float()
-        return {"images": batch["img"], "vector": camera.batch_vector(batch), "speed": speed}
-
     return training.extract(dataset, inputs, 32, progress)
 
 
@@ -116,7 +123,7 @@ def _predict(model: nn.Module, rows: dict[str, torch.Tensor]):  # type: ignore[n
 
 
 def train(
-    dataset: DriveE2EDataset,
+    dataset: DriveE2EDataset | FeatureCache,
     checkpoint: Path,
     options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
@@ -124,16 +131,23 @@ def train(
     device: str = "cpu",
     width: int = 64,
 ) -> dict[str, Any]:
-    """Train on every sample of `dataset` (from `dataset_for`) on `device`; returns the
-    checkpoint. `width`: the trunk's first stage's channels (64: ResNet-18)."""
+    """Train on every sample of `dataset` (from `dataset_for`, or the split's feature cache of
+    `FEATURES`) on `device`; returns the checkpoint. `width`: the trunk's first stage's
+    channels (64: ResNet-18). On a GPU the forward pass runs in bfloat16 autocast and the
+    trunk in channels-last memory."""
     options = options or TrainOptions(epochs=30, batch_size=32, learning_rate=3e-4)
     full_size = camera.trainable_size(dataset, INPUT_SIZE, TCPPolicy.name)
-    data = extract(dataset, on_sample)
+    data = training.source(dataset, inputs, 32, on_sample)
     torch.manual_seed(options.seed)
-    model = TCPPolicy(len(FRONT_CAMERAS), data["y"].shape[1], width)
+    model = TCPPolicy(len(FRONT_CAMERAS), int(data.rows(torch.arange(1))["y"].shape[1]), width)
     header = {"kind": TCPPolicy.name, "steps": model.steps, "width": width,
               "blocks": list(model.blocks), "camera_size": full_size}  # fmt: skip
-    return fit(model, data, _predict, checkpoint, options, header, on_epoch, device)
+    gpu = torch.device(device).type == "cuda"
+    if gpu:
+        model.trunk.to(memory_format=torch.channels_last)
+    return fit(
+        model, data, _predict, checkpoint, options, header, on_epoch, device, mixed_precision=gpu
+    )
 
 
 def load(path: Path) -> tuple[TCPPolicy, tuple[int, int]]:

@@ -1,20 +1,30 @@
 """The baselines' training loop: masked L1 on the 2 Hz future waypoints, AdamW, a shuffled
 order drawn every epoch from the seed (so a resumed run equals an uninterrupted one), and an
-atomic checkpoint after every epoch."""
+atomic checkpoint after every epoch.
+
+Rows come from a `Rows` source: tensors in memory (`TensorRows`, what `extract` reads from the
+Dataset: the reference) or a feature cache (`CacheRows`: `loaders/cache.py`, the fast path).
+Batches go through a DataLoader: its workers gather the next batches from the cache's memory
+maps while the model trains, into pinned memory where the model is on a GPU. Both sources give
+the same rows, so a training from either is the same training (tested)."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from torch import nn
 from torch.utils.data import Dataset
 
 from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.loaders.cache import FeatureCache
 from drivee2e_data.loaders.collate import collate
+
+Inputs = Callable[[dict[str, Any]], dict[str, torch.Tensor]]
 
 
 @dataclass(frozen=True)
@@ -23,6 +33,21 @@ class TrainOptions:
     batch_size: int = 64
     learning_rate: float = 1e-3
     seed: int = 0
+
+
+def source(
+    data: Dataset | FeatureCache,
+    inputs: Inputs,
+    batch_size: int,
+    progress: Callable[[int], None] | None = None,
+) -> Rows:
+    """Training rows of a feature cache (read as batches are drawn), or of a Dataset (every
+    sample read now, `extract`: the reference path)."""
+    if isinstance(data, FeatureCache):
+        if progress is not None:
+            progress(len(data))
+        return CacheRows(data, inputs)
+    return TensorRows(extract(data, inputs, batch_size, progress))
 
 
 def extract(
@@ -48,22 +73,109 @@ def extract(
     return {key: torch.cat(value) for key, value in rows.items()}
 
 
+class Rows(Protocol):
+    """Training rows: the model's inputs beside `y` (N, T, 2) targets and `mask` (N, T)."""
+
+    def __len__(self) -> int: ...
+
+    def rows(self, indices: torch.Tensor) -> dict[str, torch.Tensor]: ...
+
+
+@dataclass(frozen=True)
+class TensorRows:
+    """Rows held in memory as tensors of N rows each."""
+
+    data: dict[str, torch.Tensor]
+
+    def __len__(self) -> int:
+        return len(self.data["y"])
+
+    def rows(self, indices: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {key: value[indices] for key, value in self.data.items()}
+
+
+@dataclass(frozen=True)
+class CacheRows:
+    """Rows of a feature cache: `inputs(batch)` of the cached fields, the targets beside."""
+
+    cache: FeatureCache
+    inputs: Inputs
+
+    def __len__(self) -> int:
+        return len(self.cache)
+
+    def rows(self, indices: torch.Tensor) -> dict[str, torch.Tensor]:
+        batch = self.cache.rows(indices)
+        return {
+            **self.inputs(batch),
+            "y": batch["gt_ego_fut_trajs"].float(),
+            "mask": batch["gt_ego_fut_masks"],
+        }
+
+
+def in_memory(source: Rows) -> TensorRows:
+    """Every row of `source` in memory (for small features: AD-MLP's)."""
+    return TensorRows(source.rows(torch.arange(len(source))))
+
+
+class _Batches(torch.utils.data.Dataset):
+    """A DataLoader's view of a `Rows` source: item k is the batch of rows `indices[k]`."""
+
+    def __init__(self, source: Rows) -> None:
+        self.source = source
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, indices: torch.Tensor) -> dict[str, torch.Tensor]:
+        return self.source.rows(indices)
+
+
+class _EpochOrder(torch.utils.data.Sampler):
+    """The current epoch's batches of row indices (set before each epoch, read by the loader
+    in the main process, so persistent workers follow it)."""
+
+    def __init__(self) -> None:
+        self.batches: list[torch.Tensor] = []
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(self.batches)
+
+    def __len__(self) -> int:
+        return len(self.batches)
+
+
+def loader_workers(source: Rows) -> int:
+    """DataLoader workers for a source: none for rows in memory, else up to 8 of the cores."""
+    if isinstance(source, TensorRows):
+        return 0
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    return min(8, max(cores - 1, 0))
+
+
 def fit(
     model: nn.Module,
-    data: dict[str, torch.Tensor],
+    data: Rows | dict[str, torch.Tensor],
     predict: Callable[[nn.Module, dict[str, torch.Tensor]], Any],
     checkpoint: Path,
     options: TrainOptions,
     header: dict[str, Any],
     on_epoch: Callable[[int, float], None] | None = None,
     device: str = "cpu",
+    mixed_precision: bool = False,
 ) -> dict[str, Any]:
-    """Train `model` on `data` (rows of tensors; `y` (N, T, 2) targets and `mask` (N, T) among
-    them), `predict(model, rows)` giving (B, T, 2), or that and an auxiliary loss to add;
-    resumes from `checkpoint` when it holds an earlier run of the same options. `header` (kind
-    and shapes) goes into the checkpoint. The data stays where it is (the CPU); each batch goes
-    to `device`, the model lives there. The reported loss is the waypoints' L1 alone."""
-    samples = len(data["y"])
+    """Train `model` on `data` (a `Rows` source, or tensors of N rows each: `y` (N, T, 2)
+    targets and `mask` (N, T) among them), `predict(model, rows)` giving (B, T, 2), or that and
+    an auxiliary loss to add; resumes from `checkpoint` when it holds an earlier run of the same
+    options. `header` (kind and shapes) goes into the checkpoint. Batches are gathered by a
+    DataLoader (workers for a cache) and moved to `device`, where the model lives; with
+    `mixed_precision` on a CUDA device the forward pass runs in bfloat16 autocast. The reported
+    loss is the waypoints' L1 alone."""
+    source = TensorRows(data) if isinstance(data, dict) else data
+    samples = len(source)
     model.to(device)
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
     state: dict[str, Any] = {"epoch": 0, "losses": []}
@@ -74,27 +186,43 @@ def fit(
         state = {"epoch": saved["epoch"], "losses": saved["losses"]}
         if state["epoch"] >= options.epochs:
             return saved
+    cuda = torch.device(device).type == "cuda"
+    autocast = torch.autocast("cuda", torch.bfloat16, enabled=cuda and mixed_precision)
+    order = _EpochOrder()
+    workers = loader_workers(source)
+    loader = torch.utils.data.DataLoader(
+        _Batches(source),
+        sampler=order,
+        batch_size=None,
+        num_workers=workers,
+        pin_memory=cuda,
+        persistent_workers=workers > 0,
+        prefetch_factor=4 if workers > 0 else None,
+        generator=torch.Generator(),  # its seed draw leaves the global generator (dropout) alone
+    )
     generator = torch.Generator().manual_seed(options.seed)
     for epoch in range(options.epochs):
-        order = torch.randperm(samples, generator=generator)  # drawn every epoch: resumable
+        permutation = torch.randperm(samples, generator=generator)  # drawn every epoch: resumable
         if epoch < state["epoch"]:
             continue
+        order.batches = list(torch.split(permutation, options.batch_size))
         model.train()
         total, count = 0.0, 0
-        for start in range(0, samples, options.batch_size):
-            rows = order[start : start + options.batch_size]
-            batch = {key: value[rows].to(device) for key, value in data.items()}
+        for rows in loader:
+            batch = {key: value.to(device, non_blocking=True) for key, value in rows.items()}
             mask = batch["mask"].float()[..., None]
-            predicted = predict(model, batch)
+            with autocast:
+                predicted = predict(model, batch)
             extra = torch.zeros((), device=device)
             if isinstance(predicted, tuple):
                 predicted, extra = predicted
-            error = (predicted - batch["y"]).abs() * mask
+            error = (predicted.float() - batch["y"]).abs() * mask
             loss = error.sum() / mask.sum().clamp_min(1.0) / 2
             optimiser.zero_grad()
-            (loss + extra).backward()
+            (loss + extra.float()).backward()
             optimiser.step()
-            total, count = total + loss.item() * len(rows), count + len(rows)
+            size = len(batch["y"])
+            total, count = total + loss.item() * size, count + size
         state = {"epoch": epoch + 1, "losses": [*state["losses"], total / count]}
         weights = {key: value.cpu() for key, value in model.state_dict().items()}
         document = {**header, "model": weights, "optimiser": optimiser.state_dict()}

@@ -1,7 +1,7 @@
 """The `drivee2e` command: parses arguments, calls the library, prints. No logic of its own.
 
 One module per group of commands: `data` (synth, import, curate, scenarios, split),
-`collection` (view, collect, logs, mesa), `learning` (train, predict, openloop, export) and
+`collection` (view, collect, logs, mesa), `learning` (cache, train, predict, openloop, export) and
 `closedloop` (evaluate); `arguments` holds the argument types they share.
 """
 
@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_scenarios(commands)
     collection.add_collect(commands)
     data.add_split(commands)
+    learning.add_cache(commands)
     learning.add_train(commands)
     learning.add_predict(commands)
     learning.add_openloop(commands)
@@ -52,6 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "collect": collection.run_collect,
         "logs": collection.run_logs,
         "split": data.run_split,
+        "cache": learning.run_cache,
         "train": learning.run_train,
         "predict": learning.run_predict,
         "openloop": learning.run_openloop,

@@ -1,4 +1,5 @@
-"""Imitation learning on the logs: `train`, `predict`, `openloop` (L2 and collisions), `export`.
+"""Imitation learning on the logs: `cache`, `train`, `predict`, `openloop` (L2 and collisions),
+`export`.
 
 torch, Lightning and the models are imported by the commands that run them, not with this
 module: every `drivee2e` command, and every collection worker (which re-imports the command's
@@ -18,6 +19,7 @@ from drivee2e_data.cli.arguments import (
     _positive,
     _print_table,
     _split_options,
+    _workers,
 )
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.metrics import CONVENTIONS
@@ -26,6 +28,36 @@ PLANNERS = ("constant-velocity", "admlp", "camera", "tcp")
 EPOCHS = {"admlp": 60, "camera": 40, "tcp": 30}
 BATCH_SIZES = {"admlp": 64, "camera": 32, "tcp": 32}
 LEARNING_RATES = {"admlp": 1e-3, "camera": 1e-3, "tcp": 3e-4}
+
+
+def _cache_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--workers",
+        type=_workers,
+        default="auto",
+        help="processes building the feature cache (default auto: one per core)",
+    )
+    parser.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="read the logs sample by sample instead of the feature cache (the reference path)",
+    )
+
+
+def add_cache(commands) -> None:  # type: ignore[no-untyped-def]
+    """The `cache` command's arguments."""
+    cache = commands.add_parser(
+        "cache", help="decode what a model reads from a split once, into DATA/features/"
+    )
+    cache.add_argument("data", type=Path, help="data root (collected, split)")
+    cache.add_argument("--model", choices=PLANNERS, required=True, help="whose features")
+    _split_options(cache, "train")
+    cache.add_argument(
+        "--workers",
+        type=_workers,
+        default="auto",
+        help="processes, one clip each at a time (default auto: one per core)",
+    )
 
 
 def add_train(commands) -> None:  # type: ignore[no-untyped-def]
@@ -46,8 +78,12 @@ def add_train(commands) -> None:  # type: ignore[no-untyped-def]
     )
     train.add_argument("--seed", type=int, default=0)
     train.add_argument(
-        "--device", default="auto", help="tcp: where to train (auto: cuda where there is one)"
+        "--device",
+        default="auto",
+        help="tcp: where to train (auto: cuda where there is one; cuda:N picks a GPU, so "
+        "several trainings run side by side)",
     )
+    _cache_options(train)
 
 
 def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
@@ -62,6 +98,7 @@ def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
         "--checkpoint", type=Path, help="the model's checkpoint (admlp, camera, tcp)"
     )
     predict.add_argument("--out", type=Path, required=True, help="predictions Parquet to write")
+    _cache_options(predict)
 
 
 def add_openloop(commands) -> None:  # type: ignore[no-untyped-def]
@@ -105,6 +142,61 @@ def _labels_only(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     return DriveE2EDataset(args.data, args.split, args.split_name, cameras=(), with_map=False)
 
 
+def feature_spec(model: str):  # type: ignore[no-untyped-def]
+    """The feature spec a model's training and open-loop planning read."""
+    from drivee2e_data.agents import admlp, camera, tcp
+
+    return {"admlp": admlp.FEATURES, "constant-velocity": admlp.FEATURES,
+            "camera": camera.FEATURES, "tcp": tcp.FEATURES}[model]  # fmt: skip
+
+
+def _features(args: argparse.Namespace, model: str):  # type: ignore[no-untyped-def]
+    """The split's samples as `model` reads them: its feature cache (built where missing), or
+    with `--no-cache` the Dataset over the logs."""
+    from drivee2e_data.loaders import cache
+
+    spec = feature_spec(model)
+    if getattr(args, "no_cache", False):
+        return spec.dataset(args.data, args.split, args.split_name)
+    workers = _worker_count(args.workers)
+    with tqdm(unit="sample", desc=f"caching {spec.name} features", disable=None) as bar:
+        report = cache.build(args.data, spec, args.split, args.split_name, workers, bar.update)
+    if report.written:
+        print(
+            f"cached {spec.name} features of {len(report.written)} clips "
+            f"({len(report.reused)} already cached): {report.folder}"
+        )
+    return cache.FeatureCache(args.data, spec, args.split, args.split_name)
+
+
+def _worker_count(workers: int | str) -> int:
+    if workers != "auto":
+        return int(workers)
+    from drivee2e_data.collect.host import usable_cores
+
+    return usable_cores()
+
+
+def run_cache(args: argparse.Namespace) -> int:
+    import time
+
+    from drivee2e_data.loaders import cache
+
+    spec = feature_spec(args.model)
+    start = time.perf_counter()
+    with tqdm(unit="sample", desc=f"caching {spec.name} features", disable=None) as bar:
+        report = cache.build(
+            args.data, spec, args.split, args.split_name, _worker_count(args.workers), bar.update
+        )
+    seconds = time.perf_counter() - start
+    print(
+        f"{spec.name} features of split {args.split}: {report.samples} samples, "
+        f"{len(report.written)} clips written, {len(report.reused)} already cached, "
+        f"{seconds:.1f} s; {report.folder}"
+    )
+    return 0
+
+
 def run_train(args: argparse.Namespace) -> int:
     import functools
 
@@ -118,7 +210,7 @@ def run_train(args: argparse.Namespace) -> int:
     learning_rate = args.learning_rate or LEARNING_RATES[args.model]
     options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
     if args.model == "camera":
-        dataset, trainer = camera.dataset_for(args.data, args.split, args.split_name), camera.train
+        trainer = camera.train
     elif args.model == "tcp":
         device = args.device
         if device == "auto":
@@ -127,10 +219,10 @@ def run_train(args: argparse.Namespace) -> int:
             raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
         if device.startswith("cuda") and not torch.cuda.is_available():
             raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
-        dataset = tcp.dataset_for(args.data, args.split, args.split_name)
         trainer = functools.partial(tcp.train, device=device)
     else:
-        dataset, trainer = _labels_only(args), admlp.train
+        trainer = admlp.train
+    dataset = _features(args, args.model)
     with (
         tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,
         tqdm(total=epochs, unit="epoch", desc=f"training {args.model}", disable=None) as bar,
@@ -168,15 +260,9 @@ def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 def run_predict(args: argparse.Namespace) -> int:
     from drivee2e_data import openloop
-    from drivee2e_data.agents import camera, tcp
 
     planner = _planner(args)
-    if args.model == "camera":
-        dataset = camera.dataset_for(args.data, args.split, args.split_name)
-    elif args.model == "tcp":
-        dataset = tcp.dataset_for(args.data, args.split, args.split_name)
-    else:
-        dataset = _labels_only(args)
+    dataset = _features(args, args.model)
     with tqdm(
         total=len(dataset), unit="sample", desc=f"planning ({args.model})", disable=None
     ) as bar:
