@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 from mcap.reader import make_reader
 
-from drivee2e_data import store
+from drivee2e_data import splits, store
 from drivee2e_data.cli import main
 from drivee2e_data.evaluate.runner import EPISODES_FOLDER
 from tests.conftest import copy_clips
@@ -254,6 +254,33 @@ def test_camera_policy_trains_and_drives_with_its_cameras(
     (row,) = episodes(out).values()
     assert row["failure"] == "" and row["steps"] > 10
     assert os.path.getsize(out / "table.md") > 0
+
+
+def test_a_served_network_drives_the_same_episodes_as_one_in_each_worker(
+    loader_root: Path, tmp_path: Path
+) -> None:
+    """The camera policy's network on one policy server for both workers (batched) and in each
+    worker (unbatched), on the CPU: the same episodes (scores, steps, events); the network's
+    outputs differ at most in the arithmetic's last bits (1e-7 m), far below any threshold."""
+    checkpoint = tmp_path / "camera.pt"
+    args = ["train", "camera", str(loader_root), "--out", str(checkpoint), "--epochs", "1"]
+    assert main(args) == 0
+    clips = splits.scenario_ids(splits.split_path(loader_root, "default"), "all")[:2]
+    rows = {}
+    for server in ("on", "off"):
+        out = tmp_path / server
+        assert main(["evaluate", str(loader_root), "--split", "all", "--agent", "camera",
+                     "--checkpoint", str(checkpoint), "--out", str(out), "--workers", "2",
+                     "--policy-server", server, "--only", *clips]) == 0  # fmt: skip
+        rows[server] = episodes(out)
+    assert sorted(rows["on"]) == sorted(clips)
+    keys = ("status", "steps", "driving_score", "route_completion", "events", "failure")
+    for clip in clips:
+        assert rows["on"][clip]["failure"] == ""
+        assert {k: rows["on"][clip][k] for k in keys} == {k: rows["off"][clip][k] for k in keys}
+        assert rows["on"][clip]["driven_m"] == pytest.approx(
+            rows["off"][clip]["driven_m"], abs=1e-4
+        )
 
 
 def test_a_clip_without_an_ego_is_an_error_row_and_the_run_goes_on(

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from drivee2e_data.agents import tcp
+from drivee2e_data.agents import device, tcp
 from drivee2e_data.agents.resnet import BasicBlock, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.cli import main
@@ -83,11 +83,11 @@ def test_tcp_trains_resumes_plans_and_drives_a_clip(loader_root: Path, tmp_path:
 
 def test_a_device_that_is_not_there_is_one_clear_error(loader_root: Path, tmp_path: Path, capsys):
     out = tmp_path / "tcp.pt"
-    for device, message in (("tpu", "expected auto, cpu, cuda or cuda:N"),
+    for wanted, message in (("tpu", "expected auto, cpu, cuda or cuda:N"),
                             ("cuda", "torch sees no CUDA device here")):  # fmt: skip
-        if device == "cuda" and torch.cuda.is_available():
+        if wanted == "cuda" and torch.cuda.is_available():
             continue
-        code = main(["train", "tcp", str(loader_root), "--out", str(out), "--device", device])
+        code = main(["train", "tcp", str(loader_root), "--out", str(out), "--device", wanted])
         assert code != 0 and message in capsys.readouterr().err
         assert not out.exists()
 
@@ -95,10 +95,10 @@ def test_a_device_that_is_not_there_is_one_clear_error(loader_root: Path, tmp_pa
 def test_the_closed_loop_device_comes_from_the_environment(monkeypatch):
     from drivee2e_data.errors import DriveE2EError
 
-    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "cpu")
-    assert tcp.agent_device() == "cpu"
-    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "auto")
-    assert tcp.agent_device() == ("cuda" if torch.cuda.is_available() else "cpu")
-    monkeypatch.setenv(tcp.AGENT_DEVICE_VARIABLE, "tpu")
+    monkeypatch.setenv(device.AGENT_DEVICE_VARIABLE, "cpu")
+    assert device.agent_device() == "cpu"
+    monkeypatch.setenv(device.AGENT_DEVICE_VARIABLE, "auto")
+    assert device.agent_device() == ("cuda" if torch.cuda.is_available() else "cpu")
+    monkeypatch.setenv(device.AGENT_DEVICE_VARIABLE, "tpu")
     with pytest.raises(DriveE2EError, match="expected auto, cpu or cuda"):
-        tcp.agent_device()
+        device.agent_device()

@@ -18,6 +18,7 @@ from torch import nn
 
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents import training
+from drivee2e_data.agents.device import agent_device
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
@@ -115,12 +116,16 @@ def batch_vector(batch: dict[str, Any]) -> torch.Tensor:
 def observation_inputs(
     observation: Observation, image_size: tuple[int, int], input_size: tuple[int, int]
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """A closed-loop observation as a front-camera policy's batch of one: the front cameras'
-    JPEGs (collected at `image_size`) decoded as the Dataset decodes them to `input_size`
-    `(1, 3, 3, H, W)` uint8, and the measurement vector `(1, 6)`."""
-    images = np.stack(
-        [decode_cpu(observation.images[c], image_size, input_size) for c in FRONT_CAMERAS]
-    )
+    """A closed-loop observation as a front-camera policy's batch of one: the front cameras at
+    `input_size` `(1, 3, 3, H, W)` uint8 (drawn at that size, `Observation.pixels`, or their
+    JPEGs collected at `image_size` decoded as the Dataset decodes them), and the measurement
+    vector `(1, 6)`."""
+    if observation.pixels:
+        images = np.stack([observation.pixels[c] for c in FRONT_CAMERAS])
+    else:
+        images = np.stack(
+            [decode_cpu(observation.images[c], image_size, input_size) for c in FRONT_CAMERAS]
+        )
     command = torch.zeros(1, 3)
     command[0, int(observation.command) - 1] = 1.0
     vector = vector_features(
@@ -191,37 +196,59 @@ def train(
     )
 
 
-def load(path: Path) -> tuple[CameraPolicy, tuple[int, int]]:
-    """The trained policy and the camera image size its data was collected at."""
+def load(path: Path, network: bool = True) -> tuple[CameraPolicy | None, tuple[int, int]]:
+    """The trained policy (None without `network`) and the camera image size its data was
+    collected at."""
     saved = checkpoints.load(path, CameraPolicy.name, "drivee2e train camera")
+    width, height = saved["camera_size"]
+    if not network:
+        return None, (int(width), int(height))
     model = CameraPolicy(len(FRONT_CAMERAS), saved["steps"])
     model.load_state_dict(saved["model"])
     model.eval()
-    width, height = saved["camera_size"]
     return model, (int(width), int(height))
 
 
 class CameraAgent:
-    """The camera policy in closed loop: the front cameras rendered at the size its training
-    data was collected at, decoded as the Dataset decodes them."""
+    """The camera policy in closed loop: the front cameras as its training read them (its
+    `FEATURES`): drawn for the size its data was collected at and served at its input size
+    (`evaluate/observation.py`). The network runs on `agent_device()`, or on a policy server
+    (`model_inputs` here, `forward_batch` there)."""
 
     name = "camera"
-    sensors = FRONT_CAMERAS
+    sensors = FEATURES.cameras
+    input_size = FEATURES.image_size
 
-    def __init__(self, checkpoint: Path | None = None) -> None:
+    def __init__(self, checkpoint: Path | None = None, network: bool = True) -> None:
         if checkpoint is None:
             raise DriveE2EError(
                 "agent camera needs --checkpoint (drivee2e train camera writes one)"
             )
-        self.model, self.image_size = load(Path(checkpoint))
+        self.model, self.image_size = load(Path(checkpoint), network)
+        self.device = agent_device() if network else "cpu"
+        if self.model is not None:
+            self.model.to(self.device)
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
 
-    @torch.no_grad()
-    def act(self, observation: Observation) -> Waypoints:
+    def model_inputs(self, observation: Observation) -> dict[str, np.ndarray]:
+        """One observation as the network's inputs: images `(3, 3, H, W)` uint8, vector (6,)."""
         images, vector = observation_inputs(observation, self.image_size, INPUT_SIZE)
-        return Waypoints(self.model(images, vector)[0].double().numpy())
+        return {"images": images[0].numpy(), "vector": vector[0].numpy()}
+
+    @torch.no_grad()
+    def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
+        """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
+        if self.model is None:
+            raise DriveE2EError("this camera agent was built without its network (network=False)")
+        images = torch.from_numpy(inputs["images"]).to(self.device)
+        vector = torch.from_numpy(inputs["vector"]).to(self.device)
+        return self.model(images, vector).double().cpu().numpy()
+
+    def act(self, observation: Observation) -> Waypoints:
+        inputs = self.model_inputs(observation)
+        return Waypoints(self.forward_batch({k: v[None] for k, v in inputs.items()})[0])
 
 
 class CameraPlanner:

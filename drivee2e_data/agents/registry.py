@@ -41,13 +41,16 @@ def resolve(spec: str) -> type:
     return agent_class
 
 
-def build(spec: str, checkpoint: Path | None = None) -> Any:
-    """An agent instance: built with `checkpoint` when its constructor takes one."""
+def build(spec: str, checkpoint: Path | None = None, network: bool = True) -> Any:
+    """An agent instance: built with `checkpoint` when its constructor takes one; with
+    `network=False`, without loading its network where the constructor allows (an agent
+    served by a policy server: its network runs there)."""
     agent_class = resolve(spec)
     parameters = inspect.signature(agent_class).parameters
     if checkpoint is not None and "checkpoint" not in parameters:
         raise DriveE2EError(f"agent {spec!r} takes no checkpoint")
-    agent = agent_class(checkpoint) if "checkpoint" in parameters else agent_class()
+    options = {} if network or "network" not in parameters else {"network": False}
+    agent = agent_class(checkpoint, **options) if "checkpoint" in parameters else agent_class()
     for attribute, default in (("name", spec), ("sensors", ()), ("image_size", None)):
         if not hasattr(agent, attribute):
             setattr(agent, attribute, default)

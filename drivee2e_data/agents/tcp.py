@@ -12,17 +12,18 @@ camera policy (`agents/camera.py`), at `INPUT_SIZE`.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
 from drivee2e_data.agents import camera, training
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD
+from drivee2e_data.agents.device import agent_device
 from drivee2e_data.agents.resnet import RESNET18_BLOCKS, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
@@ -150,55 +151,58 @@ def train(
     )
 
 
-def load(path: Path) -> tuple[TCPPolicy, tuple[int, int]]:
-    """The trained policy (on the CPU) and the camera image size its data was collected at."""
+def load(path: Path, network: bool = True) -> tuple[TCPPolicy | None, tuple[int, int]]:
+    """The trained policy (on the CPU; None without `network`) and the camera image size its
+    data was collected at."""
     saved = checkpoints.load(path, TCPPolicy.name, "drivee2e train tcp")
+    width, height = saved["camera_size"]
+    if not network:
+        return None, (int(width), int(height))
     model = TCPPolicy(len(FRONT_CAMERAS), saved["steps"], saved["width"], tuple(saved["blocks"]))
     model.load_state_dict(saved["model"])
     model.eval()
-    width, height = saved["camera_size"]
     return model, (int(width), int(height))
 
 
-# where the closed-loop agent runs its network: DRIVEE2E_AGENT_DEVICE=cpu, cuda or auto (the
-# default: cuda where torch sees a GPU). The agent is made before the episode's world, so CUDA
-# starts before the renderer's EGL context in each evaluation process.
-AGENT_DEVICE_VARIABLE = "DRIVEE2E_AGENT_DEVICE"
-
-
-def agent_device() -> str:
-    """The device the closed-loop agent runs on (`AGENT_DEVICE_VARIABLE`)."""
-    chosen = os.environ.get(AGENT_DEVICE_VARIABLE, "auto")
-    if chosen == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if chosen != "cpu" and not chosen.startswith("cuda"):
-        raise DriveE2EError(f"{AGENT_DEVICE_VARIABLE}={chosen!r}: expected auto, cpu or cuda")
-    return chosen
-
-
 class TCPAgent:
-    """The policy in closed loop: the front cameras rendered at the size its training data was
-    collected at, decoded as the Dataset decodes them; waypoints to the PID controller. The
-    network runs on `agent_device()`."""
+    """The policy in closed loop: the front cameras as its training read them (its `FEATURES`:
+    drawn for the size its data was collected at, served at its input size,
+    `evaluate/observation.py`); waypoints to the harness's controllers. The network runs on
+    `agent_device()`, or on a policy server (`model_inputs` here, `forward_batch` there)."""
 
     name = "tcp"
-    sensors = FRONT_CAMERAS
+    sensors = FEATURES.cameras
+    input_size = FEATURES.image_size
 
-    def __init__(self, checkpoint: Path | None = None) -> None:
+    def __init__(self, checkpoint: Path | None = None, network: bool = True) -> None:
         if checkpoint is None:
             raise DriveE2EError("agent tcp needs --checkpoint (drivee2e train tcp writes one)")
-        self.model, self.image_size = load(Path(checkpoint))
-        self.device = agent_device()
-        self.model.to(self.device)
+        self.model, self.image_size = load(Path(checkpoint), network)
+        self.device = agent_device() if network else "cpu"
+        if self.model is not None:
+            self.model.to(self.device)
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
 
-    @torch.no_grad()
-    def act(self, observation: Observation) -> Waypoints:
+    def model_inputs(self, observation: Observation) -> dict[str, np.ndarray]:
+        """One observation as the network's inputs: images `(3, 3, H, W)` uint8, vector (6,)."""
         images, vector = camera.observation_inputs(observation, self.image_size, INPUT_SIZE)
-        plan, _ = self.model(images.to(self.device), vector.to(self.device))
-        return Waypoints(plan[0].double().cpu().numpy())
+        return {"images": images[0].numpy(), "vector": vector[0].numpy()}
+
+    @torch.no_grad()
+    def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
+        """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
+        if self.model is None:
+            raise DriveE2EError("this tcp agent was built without its network (network=False)")
+        images = torch.from_numpy(inputs["images"]).to(self.device)
+        vector = torch.from_numpy(inputs["vector"]).to(self.device)
+        plan, _ = self.model(images, vector)
+        return plan.double().cpu().numpy()
+
+    def act(self, observation: Observation) -> Waypoints:
+        inputs = self.model_inputs(observation)
+        return Waypoints(self.forward_batch({k: v[None] for k, v in inputs.items()})[0])
 
 
 class TCPPlanner:

@@ -11,8 +11,8 @@ from drivee2e_data import splits
 from drivee2e_data.agents import registry
 from drivee2e_data.agents.registry import AGENTS
 from drivee2e_data.cli.arguments import (
-    _positive,
     _split_options,
+    _workers,
 )
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
@@ -44,7 +44,20 @@ def add_evaluate(commands) -> None:  # type: ignore[no-untyped-def]
         action="store_true",
         help="apply LB2's minimum-speed penalty (off by default)",
     )
-    evaluate.add_argument("--workers", type=_positive, default=1, help="processes (default 1)")
+    evaluate.add_argument(
+        "--workers",
+        type=_workers,
+        default=1,
+        help="processes (default 1); auto: one per core for agents that read cameras (their "
+        "renderers spread over the GPUs), a few for agents that read none",
+    )
+    evaluate.add_argument(
+        "--policy-server",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="run a camera agent's network once per GPU for all workers, batched (auto: where "
+        "torch sees a GPU and several workers run; on: also on the CPU)",
+    )
     evaluate.add_argument(
         "--record",
         nargs="?",
@@ -53,6 +66,12 @@ def add_evaluate(commands) -> None:  # type: ignore[no-untyped-def]
         choices=("mcap", "mp4"),
         help="write RUN/records/<clip>.mcap (the episode for Foxglove; the default kind) or "
         "<clip>.mp4 (the front camera beside the top view with the driven and logged paths)",
+    )
+    evaluate.add_argument(
+        "--exact-images",
+        action="store_true",
+        help="draw camera agents' images at the collection size and JPEG them, as the logs "
+        "(default: drawn at the size the agent reads, docs/closedloop.md)",
     )
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--renderer", choices=RENDERERS, default="auto")
@@ -85,6 +104,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         seed=args.seed,
         renderer=args.renderer,
         step_timeout_s=args.step_timeout,
+        exact_images=args.exact_images,
+        policy_server=args.policy_server,
     )
     manifest = splits.split_path(args.data, args.split_name)
     if not manifest.is_file():
@@ -94,6 +115,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
         clips = [c for c in clips if c in set(args.only)]
     if not clips:
         raise DriveE2EError(f"{manifest}: split {args.split!r} has no clips to evaluate")
+    workers = args.workers
+    if workers == "auto":
+        reads = () if args.agent_cmd else tuple(registry.build(args.agent, args.checkpoint).sensors)
+        workers = runner.auto_workers(len(clips), bool(reads) or bool(args.agent_cmd))
+        print(f"evaluate: {workers} workers (--workers auto)")
     out = args.out or args.data / runner.RESULTS_FOLDER / runner.run_name(options, args.split)
     with tqdm(total=len(clips), unit="episode", desc="evaluating", disable=None) as bar:
         bar.update(len(clips) - len(runner.prepare_run(args.data, out, options, clips)))
@@ -103,7 +129,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
             if row.get("status") in ("error", "agent_failed"):
                 bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
 
-        rows = runner.evaluate(args.data, clips, options, out, args.workers, done, registry.build)
+        rows = runner.evaluate(args.data, clips, options, out, workers, done, registry.build)
     summary = runner.write_results(out, rows, options)
     print(runner.markdown_table(summary), end="")
     print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")

@@ -77,6 +77,9 @@ class Observation:
     target_point_m: NDArray[np.float64]
     images: dict[str, bytes] = field(default_factory=dict)
     lidar_points: NDArray[np.float32] | None = None
+    # for an agent that declares `input_size`: each camera's decoded image `(3, H, W)` uint8 at
+    # that size, instead of `images` (evaluate/observation.py)
+    pixels: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
 
     def image(self, camera: str, reduction: int = 1) -> NDArray[np.uint8]:
         """The camera's image decoded to RGB `(H, W, 3)`, 1/`reduction` size (1, 2, 4, 8)."""
@@ -91,7 +94,10 @@ class Observation:
 @runtime_checkable
 class Agent(Protocol):
     """A driving model. `sensors` lists the cameras (rig names) and `LIDAR_TOP` it wants
-    rendered each step; `image_size` (width, height) or None for the rig's 1600x900."""
+    rendered each step; `image_size` (width, height) or None for the rig's 1600x900: the size
+    its training images were collected at. An agent may also declare `input_size` (width,
+    height), the size its network reads images at: it then gets `Observation.pixels`, drawn
+    at a fraction of `image_size` and decoded as the Dataset decodes, instead of JPEG bytes."""
 
     name: str
     sensors: tuple[str, ...]

@@ -47,6 +47,9 @@ class EpisodeOptions:
     reactive: bool = False
     min_speed: bool = False  # LB2's minimum-speed penalty (off, as Bench2Drive)
     removed_track_ids: frozenset[str] = frozenset()  # occlusion variants drop these agents
+    # JPEGs at the collection size for every camera agent, even one that declares the size it
+    # reads (`Agent.input_size`): the collection's own path, to check the cheap one against
+    exact_images: bool = False
 
 
 @dataclass
@@ -145,7 +148,10 @@ class Episode:
                 raise ValueError(
                     f"agent {agent.name!r} asks for sensors: the episode needs a world"
                 )
-            self.observer = SensorObserver(world, tuple(agent.sensors), agent.image_size)
+            input_size = None if options.exact_images else getattr(agent, "input_size", None)
+            self.observer = SensorObserver(
+                world, tuple(agent.sensors), agent.image_size, input_size
+            )
 
     def run(self) -> EpisodeResult:
         start = time.perf_counter()
@@ -329,12 +335,16 @@ class Episode:
             [acceleration, angular, [state.speed_mps, 0.0, 0.0], [state.steer_rad]]
         )
         target = next_waypoint(self.route_waypoints, state.xy_m, TARGET_POINT_MIN_M)
-        images: dict[str, bytes] = {}
+        images: dict[str, Any] = {}
+        pixels: dict[str, Any] = {}
         lidar_points = None
         if self.observer is not None:
             images, lidar_points = self.observer.observe(
-                step, min(step, self.scenario.num_frames - 1), state, z, poses, self._signals(step)
-            )
+                step, min(step, self.scenario.num_frames - 1), state, z, poses,
+                self._signals(step), self.bicycle.centre_xy_m(state),
+            )  # fmt: skip
+            if self.observer.input_size is not None:
+                images, pixels = {}, images
         return Observation(
             step=step,
             t_s=step * STEP_S,
@@ -351,6 +361,7 @@ class Episode:
             target_point_m=to_ego_frame(target[None], state.x_m, state.y_m, state.yaw_rad)[0],
             images=images,
             lidar_points=lidar_points,
+            pixels=pixels,
         )
 
 

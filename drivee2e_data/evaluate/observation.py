@@ -1,35 +1,74 @@
 """Sensor observations in closed loop: the agent's cameras and LiDAR rendered from the ego's
-actual pose by the collection's own code (same rig, weather and light, JPEG quality), with the
-scene posed at the step."""
+actual pose by the collection's own code (same rig, weather and light), with the scene posed at
+the step.
+
+Two ways to the images, chosen by what the agent declares:
+- `image_size` alone: JPEG bytes per camera at that size, the collection's own path (the same
+  bytes as the log where the pose is the logged one).
+- `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
+  to it): each camera is drawn at the size the Dataset's decoder reads the JPEG at (1/2, 1/4 or
+  1/8 of `image_size`, reduced in the DCT), its noise and rain made at the full size and
+  averaged (`sensors.camera.with_conditions_reduced`), then area-resized to `input_size` as
+  the Dataset does: planar RGB `(3, H, W)` uint8, no JPEG either way, at a fraction of the
+  pixels. Measured against the logged images (docs/closedloop.md): PSNR above
+  `PARITY_PSNR_DB` on every weather and time of day (tested).
+"""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.evaluate.agent import LIDAR
 from drivee2e_data.evaluate.traffic import AgentPose
+from drivee2e_data.loaders.images import reduction
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sensors import lidar
-from drivee2e_data.sensors.camera import NO_DEPTH, encode_jpeg, render, with_conditions
+from drivee2e_data.sensors.camera import (
+    NO_DEPTH,
+    encode_jpeg,
+    render,
+    with_conditions,
+    with_conditions_reduced,
+)
 from drivee2e_data.sensors.ego_state import se3
+from drivee2e_data.sensors.rig import IMAGE_HEIGHT, IMAGE_WIDTH
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
 from drivee2e_data.sim.vehicle import VehicleState
 from drivee2e_data.sim.world import World
 
 JPEG_QUALITY = 85  # as collection's default
+# the cheap path's images against the logged ones decoded as the Dataset decodes them, per
+# camera image (docs/closedloop.md has the measured spread)
+PARITY_PSNR_DB = 25.0
 
 
 class SensorObserver:
-    """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig at
-    `image_size` (width, height; None for 1600x900)."""
+    """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
+    agent whose training images were collected at `image_size` (width, height; None for
+    1600x900); with `input_size`, drawn small and served as the decoded pixels at that size
+    (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
 
     def __init__(
-        self, world: World, sensors: tuple[str, ...], image_size: tuple[int, int] | None
+        self,
+        world: World,
+        sensors: tuple[str, ...],
+        image_size: tuple[int, int] | None,
+        input_size: tuple[int, int] | None = None,
     ) -> None:
         cameras = tuple(name for name in sensors if name != LIDAR)
         self.world, self.with_lidar = world, LIDAR in sensors
-        self.rig = configured_rig(SuiteOptions(cameras=cameras, image_size=image_size))
+        self.full_size = tuple(image_size or (IMAGE_WIDTH, IMAGE_HEIGHT))
+        self.input_size = None if input_size is None else tuple(input_size)
+        drawn = self.full_size
+        if world.renderer != "gl":  # pybullet's renderers draw no weather: the JPEG path
+            self.input_size = None
+        if self.input_size is not None:
+            factor = reduction(self.full_size, self.input_size)
+            drawn = (self.full_size[0] // factor, self.full_size[1] // factor)
+        self.rig = configured_rig(SuiteOptions(cameras=cameras, image_size=self.full_size))
+        self.drawn_rig = configured_rig(SuiteOptions(cameras=cameras, image_size=drawn))
 
     def observe(
         self,
@@ -39,17 +78,25 @@ class SensorObserver:
         ground_z_m: float,
         poses: list[AgentPose],
         signals: dict[str, SignalState],
-    ) -> tuple[dict[str, bytes], NDArray[np.float32] | None]:
-        """JPEG per camera and the LiDAR points `(N, 5)` at this step; weather noise is seeded
-        by the log frame `frame` as in collection."""
+        centre_xy_m: NDArray[np.float64] | None = None,
+    ) -> tuple[dict[str, bytes | NDArray[np.uint8]], NDArray[np.float32] | None]:
+        """Per camera its JPEG (or, with `input_size`, its decoded pixels `(3, H, W)`), and the
+        LiDAR points `(N, 5)` at this step; weather noise is seeded by the log frame `frame` as
+        in collection. `centre_xy_m`: the ego's box centre (the state holds its rear axle),
+        where its headlights and its shadow are placed, as collection places them."""
         world = self.world
-        world.place_ego(state.x_m, state.y_m, world.ego_id, state.yaw_rad)  # its headlights
+        centre = state.xy_m if centre_xy_m is None else np.asarray(centre_xy_m, np.float64)
+        world.place_ego(float(centre[0]), float(centre[1]), world.ego_id, state.yaw_rad)
         world.show({p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}, signals, frame)
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
-        images = {}
-        for camera in self.rig.cameras:
+        images: dict[str, bytes | NDArray[np.uint8]] = {}
+        for camera in self.drawn_rig.cameras:
             view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
-            images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
+            if self.input_size is None:
+                images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
+            else:
+                rgb = with_conditions_reduced(world, view, frame, self.full_size)
+                images[camera.name] = planar(rgb, self.input_size)
         points = None
         if self.with_lidar:
             sweep = lidar.sweep(
@@ -63,3 +110,11 @@ class SensorObserver:
                 [sweep.points_m, sweep.intensity, sweep.ring.astype(np.float32)]
             ).astype(np.float32)
         return images, points
+
+
+def planar(rgb: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
+    """An RGB image `(h, w, 3)` area-resized to `size` (width, height) as planar RGB
+    `(3, H, W)`, as the Dataset's decoder lays its images out."""
+    if rgb.shape[1::-1] != tuple(size):
+        rgb = cv2.resize(np.ascontiguousarray(rgb), tuple(size), interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))

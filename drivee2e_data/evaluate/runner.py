@@ -13,6 +13,7 @@ from __future__ import annotations
 import atexit
 import functools
 import json
+import os
 import random
 import resource
 import signal
@@ -36,7 +37,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import clean_up_when_stopped, worker_pool
+from drivee2e_data.processes import SPAWN, clean_up_when_stopped, worker_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -56,11 +57,16 @@ class EvaluationOptions:
     seed: int = 0
     renderer: str = "auto"
     step_timeout_s: float = 30.0
+    exact_images: bool = False  # JPEGs at the collection size even for agents that read less
+    # the network of a servable agent on one policy server per GPU (evaluate/policy_server.py):
+    # "auto" where torch sees a GPU and several workers run, "on", "off"
+    policy_server: str = "auto"
 
     def identity(self) -> dict[str, Any]:
-        """What makes two runs the same run (recording and timeouts do not change scores)."""
+        """What makes two runs the same run (recording, timeouts and where the network runs do
+        not change scores)."""
         document = asdict(self)
-        for key in ("record", "renderer", "step_timeout_s"):
+        for key in ("record", "renderer", "step_timeout_s", "policy_server"):
             document.pop(key)
         return document
 
@@ -101,6 +107,9 @@ def prepare_run(
 
 _agent: Any = None
 _world: Any = None
+# in a pool worker: its number, and the policy server its agent's network runs on (if any)
+_worker_number = 0
+_server: Any = None
 
 
 # builds an agent from its name and checkpoint (the CLI hands `agents.registry.build`: agents
@@ -123,8 +132,23 @@ def _agent_for(options: EvaluationOptions, agent_factory: AgentFactory | None) -
                     "e.g. drivee2e_data.agents.registry.build, or an agent command)"
                 )
             checkpoint = Path(options.checkpoint) if options.checkpoint else None
-            _agent = agent_factory(options.agent, checkpoint)
+            if _server is None:
+                _agent = agent_factory(options.agent, checkpoint)
+            else:
+                from drivee2e_data.evaluate.policy_server import ServedAgent
+
+                inner = _without_network(agent_factory, options.agent, checkpoint)
+                _agent = ServedAgent(inner, _server, _worker_number)
     return _agent
+
+
+def _without_network(factory: AgentFactory, name: str, checkpoint: Path | None) -> Any:
+    """The agent built without loading its network, where its factory allows it (the
+    registry's does); a factory that does not gets the plain call."""
+    try:
+        return factory(name, checkpoint, network=False)  # type: ignore[call-arg]
+    except TypeError:
+        return factory(name, checkpoint)
 
 
 def _world_for(root: Path, scenario: Any, renderer: str) -> Any:
@@ -182,7 +206,9 @@ def evaluate_clip(
             scenario,
             intersection_map,
             agent,
-            EpisodeOptions(options.reactive, options.min_speed, removed or frozenset()),
+            EpisodeOptions(
+                options.reactive, options.min_speed, removed or frozenset(), options.exact_images
+            ),
             world=world,
             keep_trace=bool(options.record),
         )
@@ -282,7 +308,21 @@ def evaluate(
     return read_rows(out, scenario_ids)
 
 
-def _init_worker() -> None:
+def _init_worker(
+    counter: Any = None, servers: tuple[Any, ...] = (), gpus: tuple[int, ...] = ()
+) -> None:
+    """A pool worker's start: its number (from `counter`), the policy server and the EGL GPU
+    it uses (round robin: the worker draws and infers on the same GPU), one thread each."""
+    global _worker_number, _server
+    if counter is not None:
+        with counter.get_lock():
+            _worker_number, counter.value = counter.value, counter.value + 1
+    if servers:
+        _server = servers[_worker_number % len(servers)]
+    if gpus:
+        from drivee2e_data.sim import egl_devices
+
+        egl_devices.use_device(egl_devices.device_for_worker(_worker_number, gpus))
     # one thread per worker for OpenCV and torch too (llvmpipe's, OpenBLAS's and OpenMP's are
     # set for the workers by the parent, `one_thread_per_worker`): with a worker per core,
     # per-core threads only compete (a lone evaluation process keeps them all)
@@ -313,7 +353,99 @@ def _run_pool(
 ) -> None:
     # longest clips first: the last worker to finish then waits least for the others
     pending = sorted(pending, key=lambda s: -_frames(root, s))
-    with worker_pool(workers, _init_worker) as pool:
+    counter = SPAWN.Value("i", 0)
+    gpus = _render_gpus(options)
+    servers = _start_servers(options, workers, agent_factory)
+    handles = tuple(handle for handle, _ in servers)
+    try:
+        _pool_episodes(root, pending, options, out, workers, on_episode, agent_factory,
+                       (counter, handles, gpus))  # fmt: skip
+    finally:
+        _stop_servers(servers)
+
+
+# an episode of an agent that draws nothing takes well under a second, a worker's start a few:
+# such runs get a worker for this many clips
+CLIPS_PER_STATE_WORKER = 10
+
+
+def auto_workers(clips: int, draws: bool) -> int:
+    """`--workers auto`: one per core for an agent that reads cameras (drawing is the work);
+    for one that reads none, one per `CLIPS_PER_STATE_WORKER` clips, at most one per core."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    if draws:
+        return max(1, min(cores, clips))
+    return max(1, min(cores, -(-clips // CLIPS_PER_STATE_WORKER)))
+
+
+def _render_gpus(options: EvaluationOptions) -> tuple[int, ...]:
+    """The EGL GPU devices a pool's workers spread their renderers over (none on a CPU)."""
+    if options.renderer not in ("auto", "gl"):
+        return ()
+    from drivee2e_data.sim import egl_devices
+
+    return egl_devices.gpu_devices()
+
+
+def _start_servers(
+    options: EvaluationOptions, workers: int, agent_factory: AgentFactory | None
+) -> list[tuple[Any, Any]]:
+    """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
+    GPU) for a servable agent: (handle, process) each; none where the agent runs in its
+    workers."""
+    if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
+        return []
+    checkpoint = Path(options.checkpoint) if options.checkpoint else None
+    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve
+
+    probe = _without_network(agent_factory, options.agent, checkpoint)
+    if not servable(probe):
+        return []
+    import torch
+
+    devices = [f"cuda:{k}" for k in range(torch.cuda.device_count())]
+    if not devices:
+        if options.policy_server != "on":
+            return []
+        devices = ["cpu"]
+    replies = tuple(SPAWN.Queue() for _ in range(workers))
+    servers = []
+    for device in devices:
+        handle = ServerHandle(SPAWN.Queue(), replies)
+        process = SPAWN.Process(
+            target=serve,
+            args=(options.agent, options.checkpoint, device, handle.requests, replies,
+                  agent_factory),
+            daemon=True,
+        )  # fmt: skip
+        process.start()
+        servers.append((handle, process))
+    return servers
+
+
+def _stop_servers(servers: list[tuple[Any, Any]]) -> None:
+    for handle, _ in servers:
+        handle.requests.put(None)
+    for _, process in servers:
+        process.join(timeout=30)
+        if process.is_alive():
+            process.terminate()
+
+
+def _pool_episodes(
+    root: Path,
+    pending: list[str],
+    options: EvaluationOptions,
+    out: Path,
+    workers: int,
+    on_episode: Callable[[dict[str, Any]], None] | None,
+    agent_factory: AgentFactory | None,
+    initargs: tuple[Any, ...],
+) -> None:
+    with worker_pool(workers, _init_worker, initargs) as pool:
         futures: dict[Future, str] = {
             pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
         }

@@ -68,7 +68,8 @@ def write_video(
             state, frame = record.state, min(record.step, last)
             driven.append(state.xy_m)
             signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
-            world.place_ego(state.x_m, state.y_m, world.ego_id, state.yaw_rad)
+            centre = bicycle.centre_xy_m(state)  # headlights and shadow at the box, as logged
+            world.place_ego(float(centre[0]), float(centre[1]), world.ego_id, state.yaw_rad)
             placements = {p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in record.agents}
             world.show(placements, signals, frame)
             ego_to_world = se3(state.x_m, state.y_m, float(ground_z_m[frame]), state.yaw_rad)

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
-from drivee2e_data.sim.conditions import post_process
+from drivee2e_data.sim.conditions import post_process, reduced_sensor_effects
 from drivee2e_data.sim.gl_readback import bgra_under
 from drivee2e_data.sim.world import World
 
@@ -134,6 +134,28 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
     if rgb.shape[1::-1] == size:
         return rgb
     return cv2.resize(rgb, size, interpolation=cv2.INTER_LINEAR)
+
+
+def with_conditions_reduced(
+    world: World, view: CameraFrame, frame: int, full_size: tuple[int, int]
+) -> NDArray[np.uint8]:
+    """The view, drawn by the GL renderer smaller than a camera of `full_size` (width, height),
+    under the clip's weather and light as that camera's image would show after an area
+    reduction to the drawn size: the low-light noise and the rain's streaks made at the full
+    size with the same seed as collection (`with_conditions`) and averaged over each drawn
+    pixel (`conditions.reduced_sensor_effects`). The closed-loop observer's cheap path: what a
+    model reading images at a fraction of the logged size sees, without drawing, weathering,
+    encoding and decoding the full image."""
+    if world.renderer != "gl":
+        raise ValueError("a reduced view needs the GL renderer (it draws the weather itself)")
+    scenario = world.scenario
+    return reduced_sensor_effects(
+        view.rgb,
+        scenario.conditions,
+        world.lighting,
+        noise_seed(scenario.scenario_id, frame, view.camera),
+        (full_size[1], full_size[0]),
+    )
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:

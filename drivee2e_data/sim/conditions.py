@@ -311,6 +311,51 @@ def _sensor_effects(
     return image
 
 
+def reduced_sensor_effects(
+    rgb: NDArray[np.uint8],
+    conditions: Conditions,
+    light: Lighting,
+    seed: int,
+    full_shape: tuple[int, int],
+) -> NDArray[np.uint8]:
+    """`_sensor_effects` for an image drawn smaller than the camera's `full_shape` (rows,
+    columns), as the full image would show after an area reduction to `rgb`'s size: the same
+    noise and the same streaks (the same draws of `seed`'s generator) made at the full size and
+    averaged over each drawn pixel's area, then added and blended as there. What the full image
+    clips at 0 or 255 before averaging is not clipped here: a difference below a level."""
+    import cv2
+
+    night = light.night
+    rain = conditions.weather == Weather.RAIN
+    if not night and not rain:
+        return rgb
+    rng = np.random.default_rng(seed)
+    size = (rgb.shape[1], rgb.shape[0])
+    image = contiguous_rgb(rgb).astype(np.float32)
+    if night:
+        shape = (*full_shape, 3)
+        start = noise_offset(math.prod(shape), rng)
+        if start is None:
+            noise = _fresh_noise(shape, rng)
+        else:
+            noise = noise_pool()[start : start + math.prod(shape)].reshape(shape)
+        image += cv2.resize(noise.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        np.clip(image, 0.0, 255.0, out=image)
+        image = np.rint(image)
+    if rain:
+        canvas = _streak_canvas(full_shape)
+        try:
+            _draw_streaks(canvas, rng)
+            weight = cv2.resize(canvas, size, interpolation=cv2.INTER_AREA) * RAIN_OPACITY
+        finally:
+            canvas.fill(0.0)
+        weight = weight[..., None]
+        image = (image * (1.0 - weight) + np.float32(RAIN_RGB) * weight) / np.float32(
+            1.0 + BLEND_EPSILON
+        )
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
 # The shaders' look per weather and time of day. Colours are linear-ish RGB in [0, 1]; values
 # were set by eye against photographs of streets under each condition, keeping a clear day's
 # brightness near the plain Lambert shading that came before (ambient + diffuse about 1).

@@ -1,0 +1,125 @@
+"""One network per GPU for every concurrent episode: a policy server process loads the agent's
+network once and runs the observations of all the episodes that wait on it as one batch.
+
+Each evaluation worker keeps its own world and renderer and prepares its agent's inputs (the
+images it drew, the measurement vector); a `ServedAgent` sends them to the server of its GPU and
+waits for the plan. The server takes the first request, then every request already queued and
+those that arrive within `GATHER_S`, stacks them, runs the network once, and answers each
+worker. A worker then holds no copy of the network and no CUDA context of its own.
+
+An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
+observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
+ego frame); `agents/camera.py` and `agents/tcp.py` do. Batched and unbatched runs of the
+network differ only in the device's arithmetic (a kernel may sum in another order for another
+batch size: 1e-7 m here on the CPU), so the episodes are the same (tested on the CPU).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypoints
+
+GATHER_S = 0.002  # after the first request, how long the server waits for more
+MAX_BATCH = 256
+REPLY_TIMEOUT_S = 600.0  # a server that answers nothing for this long is gone
+# where the server runs its network: the agent's device variable, set in the server process
+AGENT_DEVICE_VARIABLE = "DRIVEE2E_AGENT_DEVICE"
+
+
+def servable(agent: Any) -> bool:
+    """Whether an agent offers what a policy server needs."""
+    return callable(getattr(agent, "model_inputs", None)) and callable(
+        getattr(agent, "forward_batch", None)
+    )
+
+
+@dataclass(frozen=True)
+class ServerHandle:
+    """What a worker needs to reach its server: the shared request queue and its own reply
+    queue (by worker number)."""
+
+    requests: Any
+    replies: tuple[Any, ...]
+
+
+def serve(
+    agent_name: str,
+    checkpoint: str | None,
+    device: str,
+    requests: Any,
+    replies: tuple[Any, ...],
+    agent_factory: Any,
+) -> None:
+    """The server's loop (its own process): build the agent on `device`, then answer batches
+    until a None request comes."""
+    os.environ[AGENT_DEVICE_VARIABLE] = device
+    import torch
+
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))
+    while True:
+        first = requests.get()
+        if first is None:
+            return
+        batch = [first]
+        deadline = time.perf_counter() + GATHER_S
+        while len(batch) < MAX_BATCH:
+            try:
+                item = requests.get_nowait()
+            except queue.Empty:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0:
+                    break
+                try:
+                    item = requests.get(timeout=remaining)
+                except queue.Empty:
+                    break
+            if item is None:
+                requests.put(None)  # answer this batch first, then stop
+                break
+            batch.append(item)
+        workers = [worker for worker, _ in batch]
+        try:
+            stacked = {key: np.stack([inputs[key] for _, inputs in batch]) for key in batch[0][1]}
+            plans = np.asarray(agent.forward_batch(stacked), np.float64)
+            answers: list[Any] = list(plans)
+        except Exception as error:  # the network's failure ends those episodes, not the run
+            answers = [f"the served network raised {type(error).__name__}: {error}"] * len(batch)
+        for worker, answer in zip(workers, answers, strict=True):
+            replies[worker].put(answer)
+
+
+class ServedAgent:
+    """An agent whose network runs on a policy server: its own `model_inputs` here, the batched
+    forward there, its waypoints back."""
+
+    def __init__(self, agent: Any, handle: ServerHandle, worker: int) -> None:
+        if not servable(agent):
+            raise DriveE2EError(f"agent {agent.name!r} cannot be served (no model_inputs)")
+        self.agent, self.handle, self.worker = agent, handle, worker
+        self.name = agent.name
+        self.sensors = tuple(agent.sensors)
+        self.image_size = agent.image_size
+        self.input_size = getattr(agent, "input_size", None)
+
+    def setup(self, route: Route, rig: Any) -> None:
+        self.agent.setup(route, rig)
+
+    def act(self, observation: Observation) -> Waypoints:
+        self.handle.requests.put((self.worker, self.agent.model_inputs(observation)))
+        try:
+            answer = self.handle.replies[self.worker].get(timeout=REPLY_TIMEOUT_S)
+        except queue.Empty:
+            raise AgentFailure("the policy server answered nothing") from None
+        if isinstance(answer, str):
+            raise AgentFailure(answer)
+        return Waypoints(answer)

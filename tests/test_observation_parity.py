@@ -1,0 +1,85 @@
+"""The closed-loop observer against the logged frames: the expert's own (logged) poses through
+the observer give the log's JPEG bytes on the collection's path (or within a few levels where
+the scene is posed a little differently), and on the cheap path (drawn at the size the Dataset
+decodes at, for an agent that declares its input size) the Dataset's pixels within
+`PARITY_PSNR_DB`, in rain and at night too (noise and streaks made at the full size)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+from drivee2e_data import store
+from drivee2e_data.cli import main
+from drivee2e_data.evaluate.observation import PARITY_PSNR_DB, SensorObserver
+from drivee2e_data.evaluate.traffic import Traffic
+from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.logs import topics
+from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.sim.vehicle import VehicleState
+from drivee2e_data.sim.world import World
+from tests.conftest import copy_clips
+
+FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
+SIZE, INPUT = (320, 180), (80, 45)  # drawn at 1/4, as the Dataset reads a 1/4 JPEG
+FRAMES = 6
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 10.0 * np.log10(255.0**2 / max(mse, 1e-12))
+
+
+@pytest.fixture(scope="module")
+def weathered_root(synthetic_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The default set's rain (c0006) and fog-night (c0011) clips, 6 frames at 320x180."""
+    ids = [i for i in store.scenario_ids(synthetic_root) if i.endswith(("c0006", "c0011"))]
+    root = copy_clips(synthetic_root, tmp_path_factory.mktemp("parity") / "data", ids)
+    size = f"{SIZE[0]}x{SIZE[1]}"
+    assert main(["collect", str(root), "--max-frames", str(FRAMES), "--image-size", size]) == 0
+    return root
+
+
+@pytest.mark.parametrize("clip", ["synth_s0_c0006", "synth_s0_c0011"])
+def test_the_observer_sees_the_logged_frames(weathered_root: Path, clip: str) -> None:
+    scenario = store.read_scenario(weathered_root, clip)
+    motion, traffic = ego_motion(scenario), Traffic(scenario)
+    ego = scenario.ego
+    intersection_map = store.read_map(weathered_root, scenario.map_id)
+    with (
+        World(intersection_map, scenario, "auto") as world,
+        LogReader(weathered_root / "logs" / f"{clip}.mcap") as log,
+    ):
+        if world.renderer != "gl":
+            pytest.skip("the cheap path draws with the GL renderer (no EGL here)")
+        exact = SensorObserver(world, FRONT, SIZE)
+        cheap = SensorObserver(world, FRONT, SIZE, INPUT)
+        equal, exact_psnr, cheap_psnr = 0, [], []
+        for frame in range(FRAMES):
+            state = VehicleState(
+                float(motion.x_m[frame]), float(motion.y_m[frame]),
+                float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]),
+            )  # fmt: skip
+            poses = traffic.poses(
+                frame, np.array([ego.x_m[frame], ego.y_m[frame]]), state.yaw_rad,
+                state.speed_mps, tuple(motion.size_m[:2]),
+            )  # fmt: skip
+            signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
+            z = float(motion.z_m[frame])
+            centre = np.array([ego.x_m[frame], ego.y_m[frame]])
+            jpegs, _ = exact.observe(frame, frame, state, z, poses, signals, centre)
+            pixels, _ = cheap.observe(frame, frame, state, z, poses, signals, centre)
+            raw = log.frame_raw(log.first_frame + frame, [topics.image_topic(c) for c in FRONT])
+            for camera in FRONT:
+                logged = CompressedImage.FromString(raw[topics.image_topic(camera)]).data
+                equal += logged == jpegs[camera]
+                exact_psnr.append(psnr(decode_cpu(jpegs[camera], SIZE), decode_cpu(logged, SIZE)))
+                assert pixels[camera].shape == (3, INPUT[1], INPUT[0])
+                cheap_psnr.append(psnr(pixels[camera], decode_cpu(logged, SIZE, INPUT)))
+    assert equal >= len(exact_psnr) // 2  # the same bytes on most frames
+    assert min(exact_psnr) > 38.0
+    assert min(cheap_psnr) > PARITY_PSNR_DB
