@@ -98,6 +98,7 @@ def train(
     options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (a Dataset built with `cameras=()`, or the split's
     feature cache of `FEATURES`); returns the checkpoint."""
@@ -118,7 +119,9 @@ def train(
     model.mean[continuous] = data["x"][:, continuous].mean(0)
     model.scale[continuous] = data["x"][:, continuous].std(0).clamp_min(MIN_SCALE)
     header = {"kind": ADMLP.name, "inputs": model.mean.shape[0], "steps": model.steps}
-    return fit(model, rows, lambda m, rows: m(rows["x"]), checkpoint, options, header, on_epoch)
+    return fit(
+        model, rows, lambda m, rows: m(rows["x"]), checkpoint, options, header, on_epoch, device
+    )
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:

@@ -76,6 +76,7 @@ class CameraPolicy(nn.Module):
             generator = torch.Generator().manual_seed(int(self.augment_step))
             self.augment_step += 1
             gain = torch.empty(batch, 1, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
+            gain = gain.to(pixels.device)
             pixels = (pixels.view(batch, cameras, *pixels.shape[1:]) * gain).clamp(0.0, 1.0)
             pixels = pixels.flatten(0, 1)
         features = self.encoder((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)
@@ -176,6 +177,7 @@ def train(
     options: TrainOptions | None = None,
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (from `dataset_for`, or the split's feature cache of
     `FEATURES`); returns the checkpoint."""
@@ -185,6 +187,7 @@ def train(
     torch.manual_seed(options.seed)
     model = CameraPolicy(len(FRONT_CAMERAS), int(data.rows(torch.arange(1))["y"].shape[1]))
     header = {"kind": CameraPolicy.name, "steps": model.steps, "camera_size": full_size}
+    gpu = torch.device(device).type == "cuda"
     return fit(
         model,
         data,
@@ -193,6 +196,8 @@ def train(
         options,
         header,
         on_epoch,
+        device,
+        mixed_precision=gpu,
     )
 
 

@@ -80,8 +80,8 @@ def add_train(commands) -> None:  # type: ignore[no-untyped-def]
     train.add_argument(
         "--device",
         default="auto",
-        help="tcp: where to train (auto: cuda where there is one; cuda:N picks a GPU, so "
-        "several trainings run side by side)",
+        help="where to train (auto: the camera models on cuda where there is one, admlp on the "
+        "cpu; cuda:N picks a GPU, so several trainings run side by side)",
     )
     _cache_options(train)
 
@@ -209,19 +209,19 @@ def run_train(args: argparse.Namespace) -> int:
     batch_size = args.batch_size or BATCH_SIZES[args.model]
     learning_rate = args.learning_rate or LEARNING_RATES[args.model]
     options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
+    device = args.device
+    if device == "auto":  # the camera models where there is a GPU; AD-MLP's MLP on the CPU
+        device = "cuda" if torch.cuda.is_available() and args.model != "admlp" else "cpu"
+    if device != "cpu" and not device.startswith("cuda"):
+        raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
     if args.model == "camera":
-        trainer = camera.train
+        trainer = functools.partial(camera.train, device=device)
     elif args.model == "tcp":
-        device = args.device
-        if device == "auto":
-            device = "cuda" if torch.cuda.is_available() else "cpu"
-        if device != "cpu" and not device.startswith("cuda"):
-            raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
-        if device.startswith("cuda") and not torch.cuda.is_available():
-            raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
         trainer = functools.partial(tcp.train, device=device)
     else:
-        trainer = admlp.train
+        trainer = functools.partial(admlp.train, device=device)
     dataset = _features(args, args.model)
     with (
         tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,

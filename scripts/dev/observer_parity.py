@@ -1,0 +1,107 @@
+"""The closed-loop observer against the logged frames, on collected logs: for every sensor frame
+of each clip, the expert's logged pose through the observer's JPEG path (bytes equal to the log?
+PSNR of the decoded images) and its cheap path (drawn at the size the Dataset decodes at,
+PSNR against the logged JPEG decoded to the agent's input size), and the time of each path.
+
+    python scripts/dev/observer_parity.py DATA --input 128x72 [--only CLIP ...]
+
+Prints one line per clip (weather, time of day, equal JPEGs, PSNR min and median, ms a step of
+three front cameras each way) and the spread over all clips; docs/closedloop.md quotes it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+
+from drivee2e_data import store
+from drivee2e_data.evaluate.observation import SensorObserver
+from drivee2e_data.evaluate.traffic import Traffic
+from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.logs import topics
+from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.sensors.ego_state import ego_motion
+from drivee2e_data.sim.vehicle import VehicleState
+from drivee2e_data.sim.world import World
+
+FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 10.0 * np.log10(255.0**2 / max(mse, 1e-12))
+
+
+def clip_parity(root: Path, clip: str, input_size: tuple[int, int]) -> dict:
+    scenario = store.read_scenario(root, clip)
+    motion, traffic, ego = ego_motion(scenario), Traffic(scenario), scenario.ego
+    intersection_map = store.read_map(root, scenario.map_id)
+    result = {"equal": 0, "images": 0, "exact": [], "cheap": [], "exact_s": [], "cheap_s": []}
+    with (
+        World(intersection_map, scenario, "auto") as world,
+        LogReader(root / "logs" / f"{clip}.mcap") as log,
+    ):
+        calibration = log.rig["cameras"]["CAM_FRONT"]
+        full = (int(calibration["width"]), int(calibration["height"]))
+        exact = SensorObserver(world, FRONT, full)
+        cheap = SensorObserver(world, FRONT, full, input_size)
+        for logged_frame in log.sensor_frames:
+            frame = logged_frame - log.first_frame
+            state = VehicleState(float(motion.x_m[frame]), float(motion.y_m[frame]),
+                                 float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]))  # fmt: skip
+            centre = np.array([ego.x_m[frame], ego.y_m[frame]])
+            poses = traffic.poses(frame, centre, state.yaw_rad, state.speed_mps,
+                                  tuple(motion.size_m[:2]))  # fmt: skip
+            signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
+            z = float(motion.z_m[frame])
+            start = time.perf_counter()
+            jpegs, _ = exact.observe(frame, frame, state, z, poses, signals, centre)
+            result["exact_s"].append(time.perf_counter() - start)
+            start = time.perf_counter()
+            pixels, _ = cheap.observe(frame, frame, state, z, poses, signals, centre)
+            result["cheap_s"].append(time.perf_counter() - start)
+            raw = log.frame_raw(logged_frame, [topics.image_topic(c) for c in FRONT])
+            for camera in FRONT:
+                logged = CompressedImage.FromString(raw[topics.image_topic(camera)]).data
+                result["images"] += 1
+                result["equal"] += logged == jpegs[camera]
+                result["exact"].append(
+                    psnr(decode_cpu(jpegs[camera], full), decode_cpu(logged, full))
+                )
+                result["cheap"].append(psnr(pixels[camera], decode_cpu(logged, full, input_size)))
+    result["conditions"] = (
+        scenario.conditions.weather.value,
+        scenario.conditions.time_of_day.value,
+    )
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", type=Path)
+    parser.add_argument("--input", default="128x72", help="the agent's input size, WxH")
+    parser.add_argument("--only", nargs="+", default=None)
+    args = parser.parse_args()
+    input_size = tuple(int(v) for v in args.input.split("x"))
+    clips = args.only or sorted(p.stem for p in (args.data / "logs").glob("*.mcap"))
+    exact, cheap = [], []
+    for clip in clips:
+        r = clip_parity(args.data, clip, input_size)  # type: ignore[arg-type]
+        exact += r["exact"]
+        cheap += r["cheap"]
+        print(f"{clip}  {r['conditions'][0]:8s} {r['conditions'][1]:13s} JPEG path "
+              f"{r['equal']}/{r['images']} equal, PSNR min {min(r['exact']):.1f}; cheap path "
+              f"PSNR min {min(r['cheap']):.1f} median {np.median(r['cheap']):.1f} dB; ms a step "
+              f"{1000 * np.median(r['exact_s']):.0f} -> {1000 * np.median(r['cheap_s']):.0f}",
+              flush=True)  # fmt: skip
+    print(f"all {len(cheap)} images: cheap path PSNR min {min(cheap):.1f}, 5th percentile "
+          f"{np.percentile(cheap, 5):.1f}, median {np.median(cheap):.1f} dB; JPEG path min "
+          f"{min(exact):.1f} dB")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
