@@ -24,11 +24,22 @@ WORKER_THREADS = {
 }
 
 
+# A worker imports what its parent imported, wherever the command was started: a process
+# started by `python -c` (spawn's workers, forkserver's server) puts the working directory first
+# on sys.path, and from a checkout its `drivee2e_data/` (which holds no `collect/`: setuptools
+# maps that in) shadowed the installed package, every worker failing with `No module named
+# 'drivee2e_data.collect'`. Python 3.11 keeps the working directory off the path with this set
+# (spawn then takes the parent's path; Python 3.11's forkserver ignores the parent's path).
+WORKER_PATH = {"PYTHONSAFEPATH": "1"}
+
+
 @contextmanager
 def one_thread_per_worker() -> Iterator[None]:
-    """`WORKER_THREADS` in the environment (where the user set none) while a pool spawns and
-    runs its workers, which inherit it; the parent's environment restored after."""
-    added = {name: value for name, value in WORKER_THREADS.items() if name not in os.environ}
+    """`WORKER_THREADS` and `WORKER_PATH` in the environment (where the user set none) while a
+    pool spawns and runs its workers, which inherit them; the parent's environment restored
+    after."""
+    wanted = {**WORKER_THREADS, **WORKER_PATH}
+    added = {name: value for name, value in wanted.items() if name not in os.environ}
     os.environ.update(added)
     try:
         yield

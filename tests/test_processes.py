@@ -123,3 +123,39 @@ def test_the_entry_point_starts_the_pool_server_before_the_command_runs(monkeypa
         ("command", ["collect", "D", "--workers", "2"]),
         ("command", ["collect", "D"]),
     ]
+
+
+WORKERS_JSON = """
+import json
+from drivee2e_data.agents import registry
+from drivee2e_data.processes import SPAWN, preloading, worker_pool
+if __name__ == "__main__":
+    registry.resolve("expert")  # adds the working directory to the path, as evaluate does
+    for context in (preloading(["json"]), SPAWN):
+        with worker_pool(1, print, (), context) as pool:
+            found = pool.submit(eval, "__import__('json').__file__").result()
+            print(context.get_start_method(), found == json.__file__, found)
+"""
+
+
+def test_workers_import_what_their_parent_imported_wherever_it_started(tmp_path):
+    """A command started from a checkout beside a plain `pip install .` had its forkserver
+    import from the working directory first, where the checkout's `drivee2e_data/` (without
+    `collect/`) shadowed the installed package (`No module named 'drivee2e_data.collect'` in
+    every worker). Here a `json.py` in the working directory stands for it: the pools' workers,
+    forked from a server that preloads json or spawned, must import the parent's json."""
+    checkout, scripts = tmp_path / "checkout", tmp_path / "bin"
+    checkout.mkdir()
+    scripts.mkdir()
+    (checkout / "json.py").write_text("SHADOW = True\n")
+    (scripts / "command.py").write_text(WORKERS_JSON)  # as a console script: its folder first
+    done = subprocess.run(
+        [sys.executable, str(scripts / "command.py")],
+        cwd=checkout, capture_output=True, text=True, check=True,
+        env={k: v for k, v in os.environ.items() if k != "PYTHONSAFEPATH"},
+    )  # fmt: skip
+    lines = [line for line in done.stdout.splitlines() if line.startswith(("forkserver", "spawn"))]
+    assert lines, done.stdout
+    for line in lines:
+        method, same, where = line.split(" ", 2)
+        assert same == "True", (method, where)

@@ -27,7 +27,10 @@ def resolve(spec: str) -> type:
     if not class_name:
         raise DriveE2EError(f"agent {spec!r}: expected one of {', '.join(AGENTS)} or MODULE:CLASS")
     if "" not in sys.path and str(Path.cwd()) not in sys.path:
-        sys.path.insert(0, str(Path.cwd()))  # a user's module next to where they run
+        # a user's module next to where they run; last, so that from a checkout its
+        # `drivee2e_data/` does not shadow the installed package in the pool's spawned workers
+        # (they take this process's path)
+        sys.path.append(str(Path.cwd()))
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
