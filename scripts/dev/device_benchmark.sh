@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# One GPU host, from a fresh machine: its environment (scripts/gpu_env.sh), then Benchmark v1
+# (scripts/benchmark.sh) with the settings given in the environment, in the background (setsid)
+# so that a run longer than one device call goes on between calls; the GPU's utilisation logged
+# every second. Then `bash scripts/dev/device_benchmark.sh --wait SECONDS` waits, prints progress,
+# and packs what a person reads (report, stage times, summaries, GPU log) into $OUT.
+#   bash scripts/dev/device_benchmark.sh            # start (run from the repository root)
+#   bash scripts/dev/device_benchmark.sh --wait 540 # later calls
+set -uo pipefail
+RUN=/tmp/bench
+if [ "${1:-}" != --wait ]; then
+    for f in .gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+    start=$(date +%s)
+    bash scripts/gpu_env.sh > /tmp/gpu_env.log 2>&1 || { tail -20 /tmp/gpu_env.log; exit 1; }
+    echo "environment: $(( $(date +%s) - start )) s"
+    # shellcheck disable=SC1091
+    source /tmp/drivee2e_env
+    nvidia-smi --query-gpu=timestamp,index,utilization.gpu,memory.used --format=csv,noheader \
+        -l 1 > /tmp/gpu_util.csv 2>/dev/null &
+    repo=$(pwd)
+    cd /tmp || exit 1
+    setsid env PATH="/tmp/proj/bin:$PATH" DRIVEE2E=drivee2e PYTHON=python3 \
+        bash "$repo/scripts/benchmark.sh" "$RUN" > /tmp/bench.log 2>&1 < /dev/null &
+    echo "started benchmark.sh in the background"
+    exit 0
+fi
+deadline=$(( $(date +%s) + ${2:-540} ))
+while [ "$(date +%s)" -lt "$deadline" ] && ! grep -q "^## Benchmark v1" /tmp/bench.log 2>/dev/null; do
+    sleep 10
+done
+grep "^== " /tmp/bench.log | tail -40
+grep -i -E "error|traceback" /tmp/bench.log | head -5
+if grep -q "^## Benchmark v1" /tmp/bench.log; then
+    cp /tmp/bench.log "$OUT/report.txt"
+    cp /tmp/gpu_util.csv "$OUT/gpu_util.csv" 2>/dev/null
+    (cd "$RUN" && tar -czf "$OUT/results.tar.gz" times.tsv report.md scaling.png \
+        runs/*/summary.json runs/*/episodes.parquet openloop/*.json 2>/dev/null)
+    ls -la "$OUT"
+fi
