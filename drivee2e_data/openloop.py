@@ -48,11 +48,15 @@ class Planner(Protocol):
 
 
 def _batches(
-    dataset: DriveE2EDataset, indices: list[int]
+    dataset: DriveE2EDataset | FeatureCache, indices: list[int]
 ) -> Iterable[tuple[list[int], dict[str, Any]]]:
+    """Batches of these samples: gathered from a feature cache, or collated from a Dataset."""
     for start in range(0, len(indices), BATCH):
         chunk = indices[start : start + BATCH]
-        yield chunk, collate([dataset[i] for i in chunk])
+        if isinstance(dataset, FeatureCache):
+            yield chunk, dataset.rows(chunk)
+        else:
+            yield chunk, collate([dataset[i] for i in chunk])
 
 
 def predict(
@@ -63,15 +67,7 @@ def predict(
     """Every sample's plan as a predictions table: of a Dataset's samples, or of a feature
     cache's (the same samples, its batches gathered from memory)."""
     columns: dict[str, list] = {name: [] for name in PREDICTION_SCHEMA.names}
-    if isinstance(dataset, FeatureCache):
-        indices = list(range(len(dataset)))
-        chunks = [indices[k : k + BATCH] for k in range(0, len(indices), BATCH)]
-        batches: Iterable[tuple[list[int], dict[str, Any]]] = (
-            (chunk, dataset.rows(chunk)) for chunk in chunks
-        )
-    else:
-        batches = _batches(dataset, list(range(len(dataset))))
-    for chunk, batch in batches:
+    for chunk, batch in _batches(dataset, list(range(len(dataset)))):
         plans = planner.plan(batch).double()
         for k, index in enumerate(chunk):
             scenario_id, frame = dataset.samples[index]
@@ -91,7 +87,9 @@ def write_predictions(path: Path, table: pa.Table) -> None:
     store.write_bytes_atomic(Path(path), buffer.getvalue())
 
 
-def read_predictions(path: Path, dataset: DriveE2EDataset) -> dict[int, torch.Tensor]:
+def read_predictions(
+    path: Path, dataset: DriveE2EDataset | FeatureCache
+) -> dict[int, torch.Tensor]:
     """Plans `(T, 2)` by dataset index; one error naming the file, the row and what was
     expected for an unknown frame, a wrong shape or a value that is not finite."""
     path = Path(path)
@@ -133,12 +131,14 @@ def read_predictions(path: Path, dataset: DriveE2EDataset) -> dict[int, torch.Te
 
 
 def score(
-    dataset: DriveE2EDataset,
+    dataset: DriveE2EDataset | FeatureCache,
     plans: dict[int, torch.Tensor],
     convention: str = "stp3",
     on_samples: Callable[[int], None] | None = None,
 ) -> dict[str, dict[str, float]]:
-    """Metrics overall (`all`) and per behaviour category, over the samples that have a plan."""
+    """Metrics overall (`all`) and per behaviour category, over the samples that have a plan:
+    of a Dataset's samples, or of the scoring feature cache's (`loaders.cache.SCORING`: the
+    same values, gathered from memory)."""
     if convention not in CONVENTIONS:
         raise DriveE2EError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
     steps = dataset.horizons.future_steps

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data import splits
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.loaders import sample as labels
 from drivee2e_data.loaders.dataset import LOGS_FOLDER, DriveE2EDataset
 from drivee2e_data.logs.reader import LogReader
 
@@ -56,10 +57,19 @@ EGO_FIELDS = (
 )
 
 
+# what the open-loop metrics read beside the ego's future: its box, and every agent's future
+# boxes (one row per annotated box: padded per batch, with `gt_boxes_mask`, as `collate` does)
+SCORING_FIELDS = ("gt_ego_fut_trajs", "gt_ego_fut_masks", "ego_size", "ego_rear_axle_to_centre")
+SCORING_BOX_FIELDS = ("gt_agent_fut_boxes", "gt_agent_fut_masks")
+BOX_MASK = "gt_boxes_mask"
+
+
 @dataclass(frozen=True)
 class FeatureSpec:
-    """What a model reads: fixed-shape sample fields, and `cameras` decoded to `image_size`
-    (width, height) as `img` when it reads images. `name` is for people (the folder's prefix)."""
+    """What a model reads: fixed-shape sample fields, per-box fields (`box_fields`: one row per
+    annotated box, padded per batch with `gt_boxes_mask`), and `cameras` decoded to
+    `image_size` (width, height) as `img` when it reads images. `name` is for people (the
+    folder's prefix)."""
 
     name: str
     fields: tuple[str, ...] = EGO_FIELDS
@@ -68,13 +78,19 @@ class FeatureSpec:
     frame_stride: int = 1
     history_s: float = 2.0
     future_s: float = 3.0
+    box_fields: tuple[str, ...] = ()
 
     @property
     def reads_images(self) -> bool:
         return bool(self.cameras)
 
+    @property
+    def horizons(self) -> labels.Horizons:
+        return labels.Horizons.of(self.history_s, self.future_s)
+
     def all_fields(self) -> tuple[str, ...]:
-        return (*self.fields, "img") if self.reads_images else self.fields
+        fields = (*self.fields, *self.box_fields)
+        return (*fields, "img") if self.reads_images else fields
 
     def dataset(self, root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
         """The log-reading Dataset this spec reads from (the reference the cache equals)."""
@@ -95,6 +111,9 @@ class FeatureSpec:
         document = json.dumps({"version": CACHE_VERSION, **asdict(self)}, sort_keys=True)
         return f"{self.name}-{hashlib.sha256(document.encode()).hexdigest()[:12]}"
 
+
+# what `drivee2e openloop` scores a predictions file with
+SCORING = FeatureSpec("scoring", SCORING_FIELDS, box_fields=SCORING_BOX_FIELDS)
 
 _log_keys: dict[tuple[str, int, int], str] = {}  # this process's, by (path, size, mtime)
 
@@ -237,7 +256,12 @@ def _build_clip(
     frames = np.array([dataset.samples[i][1] for i in indices], np.int64)
     np.save(temporary / FRAMES_FILE, frames)
     for name, values in columns.items():
-        np.save(temporary / f"{name}.npy", np.stack(values))
+        if name in spec.box_fields:  # rows of every sample, one after another, and where
+            counts = np.array([len(v) for v in values], np.int64)
+            np.save(temporary / f"{name}.offsets.npy", np.concatenate([[0], np.cumsum(counts)]))
+            np.save(temporary / f"{name}.npy", np.concatenate(values))
+        else:
+            np.save(temporary / f"{name}.npy", np.stack(values))
     _fsync_folder(temporary)
     if final.exists():  # another process built it meanwhile: keep theirs (the same bytes)
         shutil.rmtree(temporary)
@@ -286,9 +310,12 @@ class FeatureCache(torch.utils.data.Dataset):
     ) -> None:
         self.root, self.spec, self.split = Path(root), spec, split
         self.manifest = splits.split_path(self.root, split_name)
+        self.horizons = spec.horizons
         self.samples: list[tuple[str, int]] = []
         self.categories: list[str] = []
         columns: dict[str, list[NDArray[Any]]] = {name: [] for name in spec.fields}
+        boxes: dict[str, list[NDArray[Any]]] = {name: [] for name in spec.box_fields}
+        counts: list[NDArray[np.int64]] = []
         self.image_files: list[Path] = []
         self._image_of: list[tuple[int, int]] = []  # sample -> (clip, row)
         for row in _split_clips(self.root, split, split_name):
@@ -309,6 +336,10 @@ class FeatureCache(torch.utils.data.Dataset):
             self.categories.extend([row.category] * len(frames))
             for name in spec.fields:
                 columns[name].append(np.load(folder / f"{name}.npy"))
+            for name in spec.box_fields:
+                boxes[name].append(np.load(folder / f"{name}.npy"))
+            if spec.box_fields:
+                counts.append(np.diff(np.load(folder / f"{spec.box_fields[0]}.offsets.npy")))
             if spec.reads_images:
                 clip = len(self.image_files)
                 self.image_files.append(folder / "img.npy")
@@ -317,6 +348,11 @@ class FeatureCache(torch.utils.data.Dataset):
             name: torch.from_numpy(np.concatenate(parts)) if parts else torch.zeros(0)
             for name, parts in columns.items()
         }
+        self.box_arrays = {
+            name: torch.from_numpy(np.concatenate(parts)) for name, parts in boxes.items() if parts
+        }
+        box_counts = np.concatenate(counts) if counts else np.zeros(len(self.samples), np.int64)
+        self.box_offsets = np.concatenate([[0], np.cumsum(box_counts)])
         self._maps: list[NDArray[np.uint8]] = []
         self._pid = -1
 
@@ -336,19 +372,40 @@ class FeatureCache(torch.utils.data.Dataset):
 
     def __getitem__(self, index: int) -> dict[str, Any]:
         sample: dict[str, Any] = {name: values[index] for name, values in self.arrays.items()}
+        first, last = self.box_offsets[index], self.box_offsets[index + 1]
+        for name, values in self.box_arrays.items():
+            sample[name] = values[first:last]
         if self.spec.reads_images:
             clip, row = self._image_of[index]
             sample["img"] = torch.from_numpy(np.array(self._images()[clip][row]))
         sample["category"] = self.categories[index]
         return sample
 
-    def rows(self, indices: Sequence[int] | torch.Tensor) -> dict[str, torch.Tensor]:
-        """The spec's fields of these samples, stacked: a batch."""
+    def rows(self, indices: Sequence[int] | torch.Tensor) -> dict[str, Any]:
+        """The spec's fields of these samples, stacked: a batch (per-box fields padded to the
+        batch's most boxes with zeros and `gt_boxes_mask`, as `collate` pads them), with
+        `category` as a list."""
         index = torch.as_tensor(indices, dtype=torch.int64)
-        batch = {name: values[index] for name, values in self.arrays.items()}
+        batch: dict[str, Any] = {name: values[index] for name, values in self.arrays.items()}
+        if self.box_arrays:
+            batch.update(self._padded_boxes(index.tolist()))
         if self.spec.reads_images:
             batch["img"] = torch.from_numpy(self.gather_images(index.tolist()))
+        batch["category"] = [self.categories[i] for i in index.tolist()]
         return batch
+
+    def _padded_boxes(self, indices: list[int]) -> dict[str, torch.Tensor]:
+        starts, ends = self.box_offsets[indices], self.box_offsets[np.asarray(indices) + 1]
+        most = int((ends - starts).max()) if indices else 0
+        mask = torch.zeros((len(indices), most), dtype=torch.bool)
+        padded: dict[str, torch.Tensor] = {}
+        for name, values in self.box_arrays.items():
+            padded[name] = values.new_zeros((len(indices), most, *values.shape[1:]))
+        for k, (start, end) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+            mask[k, : end - start] = True
+            for name, values in self.box_arrays.items():
+                padded[name][k, : end - start] = values[start:end]
+        return {**padded, BOX_MASK: mask}
 
     def gather_images(self, indices: Sequence[int]) -> NDArray[np.uint8]:
         """`(len, K, 3, H, W)` the images of these samples, read from their memory maps."""

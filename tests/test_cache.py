@@ -115,6 +115,13 @@ def test_train_and_predict_build_the_cache_and_say_what_is_missing(
     import pyarrow.parquet as pq
 
     assert pq.read_table(predictions).equals(pq.read_table(reference))
+    scored = {}
+    for name, extra in (("cache", []), ("logs", ["--no-cache"])):
+        scored[name] = tmp_path / f"{name}.json"
+        assert main(["openloop", str(root), "--predictions", str(predictions), "--convention",
+                     "uniad", "--json", str(scored[name]), *extra]) == 0  # fmt: skip
+    assert scored["cache"].read_text() == scored["logs"].read_text()
+    assert '"collision_3s"' in scored["cache"].read_text()
     assert main(["cache", str(root), "--model", "tcp", "--split", "val", "--workers", "1"]) == 0
     assert "1 clips written, 0 already cached" in capsys.readouterr().out
     np.testing.assert_equal(

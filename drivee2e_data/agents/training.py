@@ -177,7 +177,9 @@ def fit(
     source = TensorRows(data) if isinstance(data, dict) else data
     samples = len(source)
     model.to(device)
-    optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate)
+    cuda = torch.device(device).type == "cuda"
+    # on a GPU one fused kernel updates every parameter (the same AdamW, fewer launches)
+    optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate, fused=cuda or None)
     state: dict[str, Any] = {"epoch": 0, "losses": []}
     saved = checkpoints.resume_state(checkpoint, asdict(options), samples)
     if saved is not None:
@@ -186,7 +188,6 @@ def fit(
         state = {"epoch": saved["epoch"], "losses": saved["losses"]}
         if state["epoch"] >= options.epochs:
             return saved
-    cuda = torch.device(device).type == "cuda"
     autocast = torch.autocast("cuda", torch.bfloat16, enabled=cuda and mixed_precision)
     order = _EpochOrder()
     workers = loader_workers(source)
@@ -207,7 +208,9 @@ def fit(
             continue
         order.batches = list(torch.split(permutation, options.batch_size))
         model.train()
-        total, count = 0.0, 0
+        # the epoch's loss summed where it is computed (float64, as Python's floats), read once
+        # an epoch: reading it every batch would wait for the GPU every batch
+        total, count = torch.zeros((), dtype=torch.float64, device=device), 0
         for rows in loader:
             batch = {key: value.to(device, non_blocking=True) for key, value in rows.items()}
             mask = batch["mask"].float()[..., None]
@@ -222,13 +225,15 @@ def fit(
             (loss + extra.float()).backward()
             optimiser.step()
             size = len(batch["y"])
-            total, count = total + loss.item() * size, count + size
-        state = {"epoch": epoch + 1, "losses": [*state["losses"], total / count]}
+            total += loss.detach().double() * size
+            count += size
+        mean_loss = total.item() / count
+        state = {"epoch": epoch + 1, "losses": [*state["losses"], mean_loss]}
         weights = {key: value.cpu() for key, value in model.state_dict().items()}
         document = {**header, "model": weights, "optimiser": optimiser.state_dict()}
         checkpoints.save(
             checkpoint, {**document, "options": asdict(options), "samples": samples, **state}
         )
         if on_epoch is not None:
-            on_epoch(epoch + 1, total / count)
+            on_epoch(epoch + 1, mean_loss)
     return torch.load(checkpoint, map_location="cpu", weights_only=True)

@@ -113,6 +113,7 @@ def add_openloop(commands) -> None:  # type: ignore[no-untyped-def]
     )
     openloop.add_argument("--convention", choices=CONVENTIONS, default="stp3")
     openloop.add_argument("--json", type=Path, default=None, help="also save the table as JSON")
+    _cache_options(openloop)
 
 
 def add_export(commands) -> None:  # type: ignore[no-untyped-def]
@@ -150,14 +151,25 @@ def feature_spec(model: str):  # type: ignore[no-untyped-def]
             "camera": camera.FEATURES, "tcp": tcp.FEATURES}[model]  # fmt: skip
 
 
+def _scoring_spec():  # type: ignore[no-untyped-def]
+    from drivee2e_data.loaders.cache import SCORING
+
+    return SCORING
+
+
 def _features(args: argparse.Namespace, model: str):  # type: ignore[no-untyped-def]
     """The split's samples as `model` reads them: its feature cache (built where missing), or
     with `--no-cache` the Dataset over the logs."""
-    from drivee2e_data.loaders import cache
-
     spec = feature_spec(model)
     if getattr(args, "no_cache", False):
         return spec.dataset(args.data, args.split, args.split_name)
+    return _cached(args, spec)
+
+
+def _cached(args: argparse.Namespace, spec):  # type: ignore[no-untyped-def]
+    """The split's feature cache of `spec`, built first where any clip is missing."""
+    from drivee2e_data.loaders import cache
+
     workers = _worker_count(args.workers)
     with tqdm(unit="sample", desc=f"caching {spec.name} features", disable=None) as bar:
         report = cache.build(args.data, spec, args.split, args.split_name, workers, bar.update)
@@ -275,7 +287,7 @@ def run_predict(args: argparse.Namespace) -> int:
 def run_openloop(args: argparse.Namespace) -> int:
     from drivee2e_data import openloop
 
-    dataset = _labels_only(args)
+    dataset = _labels_only(args) if args.no_cache else _cached(args, _scoring_spec())
     plans = openloop.read_predictions(args.predictions, dataset)
     with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
         results = openloop.score(dataset, plans, args.convention, bar.update)
