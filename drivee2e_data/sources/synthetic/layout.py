@@ -43,6 +43,9 @@ STOP_LINE_GAP_M = 1.0  # stop line sits this far before the crosswalk
 ARM_LENGTH_M = 200.0
 CONNECTOR_SPACING_M = 0.5
 SPEED_LIMIT_MPS = 50 / 3.6
+# a crosswalk's pedestrian signal stands this far behind the kerb, behind the people waiting
+# there (`population.KERB_WAIT_M`: their boxes reach 1.0 m back)
+PEDESTRIAN_SIGNAL_SETBACK_M = 1.6
 # vehicles are drawn up to this share of their class's typical size (`population.sized`)
 MAX_SIZE_SCALE = 1.08
 # The junction's kerbs are drawn around the swept path of its design vehicle on every turn and
@@ -724,8 +727,9 @@ def _signal_heads(
             )
         )
     middle = arm.junction_edge_m + 0.5 * CROSSWALK_WIDTH_M
+    setback = PEDESTRIAN_SIGNAL_SETBACK_M
     for end, lateral in enumerate(
-        (-(arm.lanes_out * LANE_WIDTH_M + 1.0), arm.lanes_in * LANE_WIDTH_M + 1.0)
+        (-(arm.lanes_out * LANE_WIDTH_M + setback), arm.lanes_in * LANE_WIDTH_M + setback)
     ):
         facing = arm.angle_rad + (np.pi / 2 if end == 0 else -np.pi / 2)
         heads.append(

@@ -341,11 +341,11 @@ def first_overlap(
     ego_row: int | None = None,
 ) -> tuple[int, int] | None:
     """Rows of the first pair of agents that collide in steps [first, last] by the definition
-    the closed-loop rules use (`collision.boxes_collide`), pedestrian pairs aside; the ego's
-    box (row `ego_row`) is grown by `EXPERT_TRACKING_MARGIN_M`, the most its closed-loop
-    expert strays from the path staged here."""
+    the closed-loop rules use (`collision.boxes_collide`); the ego's box (row `ego_row`) is
+    grown by `EXPERT_TRACKING_MARGIN_M`, the most its closed-loop expert strays from the path
+    staged here. Pedestrians count too: two standing in each other's box at a kerb made one
+    hide the other while its label said it was seen."""
     sizes = agent_box_sizes(vehicles, pedestrians)
-    is_vehicle = np.arange(len(sizes)) < len(vehicles)
     margin = np.zeros(len(sizes))
     if ego_row is not None:
         margin[ego_row] = EXPERT_TRACKING_MARGIN_M
@@ -356,8 +356,7 @@ def first_overlap(
         distance = np.linalg.norm(xy[:, None] - xy[None, :], axis=-1)
         close = distance < reach[rows][:, None] + reach[rows][None, :]
         pair_i, pair_j = np.nonzero(np.triu(close, 1))
-        keep = is_vehicle[rows[pair_i]] | is_vehicle[rows[pair_j]]
-        pair_i, pair_j = rows[pair_i[keep]], rows[pair_j[keep]]
+        pair_i, pair_j = rows[pair_i], rows[pair_j]
         if pair_i.size == 0:
             continue
         # the grown box goes first: the pair's margin is the larger of the two (0 or the ego's)
