@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 # measured it (`SetupCosts`): a world on another map, its twin built, and on the map the
 # worker's world shows already, only the actors replaced. With the twins' plans shared by a
 # run's workers (`sim.reuse`), a later world on another map took 0.14-0.50 s and a replay
-# 0.07-0.23 s on an H100 host, against 0.29 s a sensor frame at 2 Hz (`scripts/bench_collect.py`,
+# 0.07-0.23 s on an H100 host, against 0.29 s a sensor frame at 2 Hz (`scripts/dev/bench_collect.py`,
 # docs/benchmarks.md, "fifteenth session"); before, a new twin took 0.7-1.0 s there, and a prior
 # of 6 frames kept the end of a 2 Hz run from being split at all (its set-ups are measured only
 # as the run goes, and at 2 Hz few come before its end).

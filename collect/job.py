@@ -87,7 +87,7 @@ class JobResult:
     node_frames: dict[str, int] = field(default_factory=dict)
     # (began, ended, process id, seconds of set-up, first frame, frames captured) of each job
     # that went into this result, epoch seconds: where a run's wall time went, and which frames
-    # each piece of a split clip got (`scripts/bench_collect.py` draws its timeline)
+    # each piece of a split clip got (`scripts/dev/bench_collect.py` draws its timeline)
     spans: list[tuple[float, float, int, float, int, int]] = field(default_factory=list)
 
 

@@ -11,7 +11,7 @@ from drivee2e_data.processes import preloading, start_server
 # what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
 # the collector, and what a world imports when it is set up. numpy loads `numpy.ma` and
 # `numpy.random` on first use (`np.median` in the twin's build, `secrets` in a temporary name):
-# in each worker's first set-up that was 0.1 s on an H100 host (scripts/profile_setup.py)
+# in each worker's first set-up that was 0.1 s on an H100 host (scripts/dev/profile_setup.py)
 WORKER_MODULES = (
     "drivee2e_data.collect.runner",
     "numpy.ma",

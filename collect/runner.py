@@ -434,7 +434,7 @@ GIVE_BACK_WAIT_S = 600.0
 # that takes one at a time: 32 workers making theirs together all waited about 1.7 s and were
 # ready together (an H100 host's two GPUs; one alone takes 0.2 s), where a few at a time have
 # the first ready in a fraction of that to start on their jobs (docs/benchmarks.md, twentieth
-# session; `scripts/bench_context_exit.py --at-once K`)
+# session; `scripts/dev/bench_context_exit.py --at-once K`)
 CONTEXTS_AT_ONCE_PER_GPU = 4
 
 

@@ -1,6 +1,6 @@
 """Damaged files for every importer: each source laid out in a folder, one of its files replaced
 by binary data, by text that is not UTF-8, or cut in half. Used by tests/test_bad_input.py and
-scripts/bad_input_catalogue.py (the table in docs/importers.md)."""
+scripts/dev/bad_input_catalogue.py (the table in docs/importers.md)."""
 
 from __future__ import annotations
 

@@ -18,7 +18,11 @@ MANIFEST = REPOSITORY / "splits" / "synthetic-800.csv"
 
 
 def _script(name: str):  # type: ignore[no-untyped-def]
-    spec = importlib.util.spec_from_file_location(name, REPOSITORY / "scripts" / f"{name}.py")
+    """A script's module: the user's scripts/ first, then the developers' scripts/dev/."""
+    path = REPOSITORY / "scripts" / f"{name}.py"
+    if not path.is_file():
+        path = REPOSITORY / "scripts" / "dev" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses look their module up by name
     spec.loader.exec_module(module)
@@ -70,7 +74,7 @@ def test_kendall_tau_on_known_rankings() -> None:
 
 
 def test_gpu_load_is_each_gpus_mean_over_nvidia_smis_samples(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts" / "dev"))
     gpus = _script("bench_gpus")
     samples = tmp_path / "samples.csv"
     samples.write_text("0, 80 %\n1, 60 %\n0, 90 %\n1, 70 %\n0, [N/A]\n")
@@ -112,7 +116,7 @@ def test_processes_exit_measured_with_and_without_a_gl_context() -> None:
     # its own process: the processes are forked, and a parent holding a GL context (as this
     # one may, from other tests) would hand them one that cannot work
     result = subprocess.run(
-        [sys.executable, str(REPOSITORY / "scripts" / "bench_context_exit.py"), "--processes", "2"],
+        [sys.executable, str(REPOSITORY / "scripts" / "dev" / "bench_context_exit.py"), "--processes", "2"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     if "no GL context" in result.stderr:
@@ -143,7 +147,7 @@ def test_context_creation_is_summarised_by_median_longest_and_span() -> None:
 
 def test_host_cpu_bench_reports_each_count_against_one_process() -> None:
     result = subprocess.run(
-        [sys.executable, str(REPOSITORY / "scripts" / "bench_host_cpu.py"),
+        [sys.executable, str(REPOSITORY / "scripts" / "dev" / "bench_host_cpu.py"),
          "--processes", "2", "--seconds", "0.3", "--images", "2"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
@@ -164,7 +168,7 @@ def test_host_cpu_bench_image_is_camera_sized_and_the_same_each_time() -> None:
 
 
 def test_host_load_reads_the_cpus_shares_from_proc_stat(monkeypatch) -> None:
-    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts" / "dev"))
     load = _script("host_load")
     before = load.cpu_times("cpu  100 0 50 800 50 0 0 0 0 0\ncpu0 1 2 3 4\nintr 5\n")
     after = load.cpu_times("cpu  400 100 100 1300 50 25 25 0 0 0\n")
@@ -181,9 +185,9 @@ def test_host_load_reads_the_cpus_shares_from_proc_stat(monkeypatch) -> None:
 
 
 def test_host_load_runs_the_command_and_exits_with_its_status() -> None:
-    command = [sys.executable, str(REPOSITORY / "scripts" / "host_load.py"), "--interval", "0.2",
+    command = [sys.executable, str(REPOSITORY / "scripts" / "dev" / "host_load.py"), "--interval", "0.2",
                "--", sys.executable, "-c", "import sys, time; time.sleep(0.5); sys.exit(3)"]  # fmt: skip
-    result = subprocess.run(command, capture_output=True, text=True, cwd=REPOSITORY / "scripts")
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPOSITORY / "scripts" / "dev")
     assert result.returncode == 3, result.stderr
     assert "exit 3" in result.stdout and "CPUs, busy middle: user" in result.stdout
 
@@ -191,7 +195,7 @@ def test_host_load_runs_the_command_and_exits_with_its_status() -> None:
 def test_spy_stages_counts_samples_by_stage_and_the_drivers_share(
     tmp_path: Path, monkeypatch
 ) -> None:
-    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts"))
+    monkeypatch.syspath_prepend(str(REPOSITORY / "scripts" / "dev"))
     spy = _script("spy_stages")
     capture = "capture_frames (collect/job.py:211);SensorSuite.capture (sensors/suite.py:202)"
     read = f"{capture};render (sensors/camera.py:99);Framebuffer.read_into (moderngl/m.py:409)"

@@ -257,7 +257,7 @@ def test_fetched_mesa_draws_what_the_systems_does(tmp_path: Path) -> None:
 @pytest.mark.skipif(_fetched() is None, reason="no Mesa fetched here (drivee2e mesa --fetch)")
 def test_bench_mesa_compares_both_through_the_command(synthetic_root: Path, tmp_path: Path):
     root = copy_clips(synthetic_root, tmp_path / "data", store.scenario_ids(synthetic_root)[:2])
-    script = Path(__file__).parents[1] / "scripts" / "bench_mesa.py"
+    script = Path(__file__).parents[1] / "scripts" / "dev" / "bench_mesa.py"
     result = subprocess.run(
         [sys.executable, str(script), "--data", str(root), "--max-frames", "2", "--repeats", "1"],
         capture_output=True, text=True, timeout=600,

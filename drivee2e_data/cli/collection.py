@@ -196,7 +196,7 @@ class CollectPlan:
 
 def plan_collect(args: argparse.Namespace) -> CollectPlan:
     """Options, workers and GPUs from `collect`'s arguments (the host's plan where asked for);
-    `scripts/bench_collect.py` runs the same."""
+    `scripts/dev/bench_collect.py` runs the same."""
     scenario_ids = args.only or store.scenario_ids(args.data)
     workers, lidar, post_process = args.workers, args.lidar, args.post_process
     check_post_process_device(post_process)  # before any clip starts

@@ -1,7 +1,7 @@
 """Seconds per 1600x900 camera image with the GL renderer, pybullet's EGL plugin and
 TinyRenderer (the reference), on a synthetic 4-way intersection with at least 40 agents.
 
-    python scripts/bench_render.py [--frames 10] [--seed 0]
+    python scripts/dev/bench_render.py [--frames 10] [--seed 0]
 
 Each renderer gets a fresh world, 3 warm-up images (EGL compiles shaders and uploads meshes on
 the first ones), then `--frames` timed front-camera images at successive clip frames; the

@@ -1,7 +1,7 @@
 """Decoding one frame's six JPEGs: OpenCV at full and half size (one thread, the reference:
 full size) and, where CUDA is present, one nvJPEG batch through torchvision.
 
-    python scripts/bench_decode.py LOG.mcap
+    python scripts/dev/bench_decode.py LOG.mcap
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 the command's summary, each clip's log made final from its segments, the pool's shutdown (its
 workers' exits) and the index.
 
-    python scripts/profile_run_end.py DATA [more `drivee2e collect` options]
+    python scripts/dev/profile_run_end.py DATA [more `drivee2e collect` options]
 
 Runs `drivee2e collect DATA ...` (`--workers auto` unless given) in this process (its pool's server started
 first, as the command does) with the parent's steps stamped, then prints them in seconds from
@@ -14,7 +14,7 @@ the collection's start, and the end's parts:
   - end: the last frame to `collect` returning, as `bench_collect.py`'s "end".
 
 On an H100 host each worker's EGL context is torn down one at a time by the driver, so the
-exits grow with the workers (`scripts/bench_context_exit.py`).
+exits grow with the workers (`scripts/dev/bench_context_exit.py`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Loader throughput: `DriveE2EDataset` reading the MCAP logs against the same Dataset reading
 the same JPEGs from a nuScenes-style folder of files (the reference), in one run.
 
-    python scripts/bench_loader.py DATA [--samples 400] [--workers 2] [--batch-size 4]
+    python scripts/dev/bench_loader.py DATA [--samples 400] [--workers 2] [--batch-size 4]
                                         [--device cuda]
 
 DATA is a collected data root with a split manifest (`drivee2e split DATA`). The reference

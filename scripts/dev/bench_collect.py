@@ -2,7 +2,7 @@
 
 By default, what a user runs: the real mix.
 
-    python scripts/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
+    python scripts/dev/bench_collect.py [--clips 16] [--seed 0] [--max-frames N] [--workers auto]
         [--gpus all|0,1] [--sensor-hz 10|2] [--identical K] [--json FILE] [--timeline PNG]
 
 makes `drivee2e synth --clips 16 --seed 0` (every weather and time of day; `--data DIR` copies
@@ -18,7 +18,7 @@ clips are collected again by one worker and compared byte for byte.
 
 The single-clip mode (`--single`) is the earlier benchmark, a favourable case to show beside it:
 
-    python scripts/bench_collect.py --single [--frames 100] [--workers 2] [--reference-frames 8]
+    python scripts/dev/bench_collect.py --single [--frames 100] [--workers 2] [--reference-frames 8]
         [--camera-labels depth,semantic,instance [--label-scale 4]] [--lidar depth]
         [--post-process cuda] [--renderer auto|gl|egl|tiny] [--no-plain]
 

@@ -1,7 +1,7 @@
 """Where collector workers' CPU time goes, by stage of a frame, from py-spy's samples.
 
     py-spy record --native --pid PID --duration 8 --rate 40 --format raw -o worker.txt
-    python scripts/spy_stages.py worker.txt [more.txt ...] [--top 12]
+    python scripts/dev/spy_stages.py worker.txt [more.txt ...] [--top 12]
 
 py-spy's raw output (one line a stack, frames separated by ';', then the sample count) of one or
 more workers, sampled while `drivee2e collect` runs. Each sample goes to the first stage of

@@ -1,6 +1,6 @@
 """Agreement of the behaviour labeller with the synthetic source's staged behaviour.
 
-    python scripts/label_agreement.py --seeds 0 1 2 --clips 14
+    python scripts/dev/label_agreement.py --seeds 0 1 2 --clips 14
 
 Synthesises the clips in memory, labels each staged ego from its scenario and map alone, and
 prints per-category precision and recall (staged behaviour as the truth) and the confusions.

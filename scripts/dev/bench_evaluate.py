@@ -2,7 +2,7 @@
 real time), peak memory per evaluation process, and the suite's wall time with N workers
 against one worker (the reference), in one run.
 
-    python scripts/bench_evaluate.py DATA [--split val] [--admlp CKPT] [--camera CKPT]
+    python scripts/dev/bench_evaluate.py DATA [--split val] [--admlp CKPT] [--camera CKPT]
                                           [--workers 2] [--suite-agent camera]
 
 DATA is a curated data root with a split manifest. Every measurement evaluates into a fresh

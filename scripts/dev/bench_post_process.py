@@ -3,7 +3,7 @@ and at night, against the reference in the same run: the same code with the sens
 afresh, the fog colour image filled for every image and the wet ground darkened through numpy's
 masked copy (as it was before 2026-11-23).
 
-    python scripts/bench_post_process.py [--repeats 10] [--size 1024x768]
+    python scripts/dev/bench_post_process.py [--repeats 10] [--size 1024x768]
 
 The image is random RGB with random depth (1-200 m) at the size the EGL renderer draws a
 1600x900 camera (the weather is applied before resizing); the front camera's headlights are on.

@@ -1,7 +1,7 @@
 """What a host's cores do together on the collector's kind of CPU work, against one core alone:
 whether the CPUs of a larger host scale with their number.
 
-    python scripts/bench_host_cpu.py [--processes 1 16 32] [--seconds 10] [--images 1]
+    python scripts/dev/bench_host_cpu.py [--processes 1 16 32] [--seconds 10] [--images 1]
 
 For each count N in `--processes`, N processes (one thread each) repeat one round of CPU work
 for `--seconds`: a 1600x900 camera-like image encoded to JPEG (OpenCV, quality 90, as

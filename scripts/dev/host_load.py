@@ -2,7 +2,7 @@
 shares (`/proc/stat`, every second) and each GPU's utilisation (`nvidia-smi`, twice a second,
 where there is one) while a command runs.
 
-    python scripts/host_load.py [--interval 1.0] -- drivee2e collect DATA --workers auto
+    python scripts/dev/host_load.py [--interval 1.0] -- drivee2e collect DATA --workers auto
 
 Prints the shares over the run's busy middle (the seconds whose CPUs were at least half as busy
 as the run's busiest second: the workers' start and the run's end left out) and over the whole

@@ -2,7 +2,7 @@
 with every GPU and every core, against one GPU with its share of the cores, the runs
 alternating.
 
-    python scripts/bench_gpus.py [--clips 16] [--seed 0] [--max-frames 0] [--repeats 2]
+    python scripts/dev/bench_gpus.py [--clips 16] [--seed 0] [--max-frames 0] [--repeats 2]
         [--data DIR] [-- EXTRA COLLECT ARGS]
 
 The one-GPU run is `--gpus D` (the first GPU device) with the command held to the first

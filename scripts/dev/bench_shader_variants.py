@@ -2,7 +2,7 @@
 is and with named variants of it (a part replaced by a constant, or left out), alternated in one
 process, so that each part's cost is measured against the shader as landed in the same run.
 
-    python scripts/bench_shader_variants.py --data DATA --clip ID [--variants a,b,...]
+    python scripts/dev/bench_shader_variants.py --data DATA --clip ID [--variants a,b,...]
         [--rounds 3] [--first-frame 30] [--frames 10]
 
 DATA is a curated data root (e.g. `drivee2e synth DATA --clips 16 --seed 0`). Every variant is

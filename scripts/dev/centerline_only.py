@@ -2,10 +2,10 @@
 crosswalks and signals; no boundaries, paint, stop lines, drivable areas, sidewalks or
 buildings), with its markings derived again (`sources/markings.py`):
 
-    python scripts/centerline_only.py DATA SCENARIO_ID --out DATA2
+    python scripts/dev/centerline_only.py DATA SCENARIO_ID --out DATA2
 
 writes the map as `<map id>_centerline` and the clip pointing at it into DATA2, for
-`drivee2e view` and `scripts/twin_fidelity.py`; prints how many lane sides got the mark the
+`drivee2e view` and `scripts/dev/twin_fidelity.py`; prints how many lane sides got the mark the
 original map paints there.
 """
 

@@ -1,6 +1,6 @@
 """How many frames' traffic-light label changes with the per-frame binding signal.
 
-    python scripts/light_binding_report.py DATA [DATA ...]
+    python scripts/dev/light_binding_report.py DATA [DATA ...]
 
 For every curated clip with an ego and a route under each data root: the ego's light at every
 frame as the loaders gave it before 2026-11-24 (the state of the first signal along the route,

@@ -1,7 +1,7 @@
 """The bad-input catalogue of docs/importers.md: every importer fed each kind of damaged file
 (binary, not UTF-8, cut in half), with the exit status and the one error line it gets:
 
-    python scripts/bad_input_catalogue.py > catalogue.md
+    python scripts/dev/bad_input_catalogue.py > catalogue.md
 
 The cases are tests/bad_inputs.py's (tests/test_bad_input.py asserts exit 2 and one line);
 the real-data cases need ../shared/realdata.
@@ -15,7 +15,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from drivee2e_data.cli import main
 from tests.bad_inputs import CASES, all_cases, prepared

@@ -1,7 +1,7 @@
 """The depth-image LiDAR against the ray-cast one (the reference), on one frame of the first
 synthetic 4-way clip with at least 40 agents, in one process:
 
-    python scripts/bench_lidar.py [--repeats 5] [--frame 80] [--oversample 1.0]
+    python scripts/dev/bench_lidar.py [--repeats 5] [--frame 80] [--oversample 1.0]
 
 Prints the renderer, seconds per sweep of each and their ratio, and how they agree: the median
 and 90th percentile of the range difference on beams both see, the rings each returns, and the

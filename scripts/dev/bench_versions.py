@@ -1,7 +1,7 @@
 """`drivee2e collect` through the CLI with two versions of this code on the same clips, runs
 alternating, so that a change's cost is measured against what users ran before it.
 
-    python scripts/bench_versions.py --base REV [--clips 16] [--seed 0] [--max-frames 30]
+    python scripts/dev/bench_versions.py --base REV [--clips 16] [--seed 0] [--max-frames 30]
         [--repeats 2] [--workers auto] [--base-tree DIR] [-- EXTRA COLLECT ARGS]
 
 The clips are `drivee2e synth --clips N --seed S` (every weather and time of day the seed
@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]  # the repository (this is scripts/dev/)
 RATE = re.compile(r"(\d+) frames in ([\d.]+) s \(([\d.]+) frames/s\)")
 
 

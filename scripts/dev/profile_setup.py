@@ -1,6 +1,6 @@
 """Where a worker's world set-up goes when every worker sets up at once, as at a pool's start.
 
-    python scripts/profile_setup.py [--workers auto] [--gpus all] [--top 30] [--data DATA]
+    python scripts/dev/profile_setup.py [--workers auto] [--gpus all] [--top 30] [--data DATA]
 
 Makes `drivee2e synth --clips 16 --seed 0` (or takes a curated `--data` root) and starts
 `--workers` processes the way `drivee2e collect` does (spawned, one EGL device each, round

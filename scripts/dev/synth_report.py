@@ -1,6 +1,6 @@
 """How often the synthetic source stages the behaviour it aims for, and how long a clip takes.
 
-    python scripts/synth_report.py --seeds 0 1 2 --clips 14
+    python scripts/dev/synth_report.py --seeds 0 1 2 --clips 14
 
 Prints, per targeted sub-scenario, how many clips showed it, and the seconds per clip.
 """

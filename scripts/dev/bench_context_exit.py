@@ -2,7 +2,7 @@
 they start, and to exit together holding it, as they do at its end: with their context held,
 after releasing it, and without GL (the reference).
 
-    python scripts/bench_context_exit.py [--processes 32] [--gpus all]
+    python scripts/dev/bench_context_exit.py [--processes 32] [--gpus all]
         [--modes held released early none] [--at-once K]
 
 Forks `--processes` processes; each touches 400 MB of memory and, unless its mode is "none",

@@ -1,6 +1,6 @@
 """Twin fidelity, measured as the paper does, on synthetic and real maps:
 
-    python scripts/twin_fidelity.py DATA [--resolution 0.05] [--size 2000]
+    python scripts/dev/twin_fidelity.py DATA [--resolution 0.05] [--size 2000]
 
 For every scenario of DATA (one per map): per map element (lanes, crosswalks, stop lines, road
 marks) the IoU between the orthographic top-down segmentation render of the twin and the map's

@@ -1,6 +1,6 @@
 """Where one collector worker's time goes: the functions that cost most per frame, by cProfile.
 
-    python scripts/profile_collect.py [--frames 30] [--lidar depth] [--post-process cpu]
+    python scripts/dev/profile_collect.py [--frames 30] [--lidar depth] [--post-process cpu]
         [--top 25] [--out FILE] [--data DATA --clip ID]
 
 Collects the benchmark clip of `bench_collect.py` (the first synthetic 4-way clip with 40 or more

@@ -1,7 +1,7 @@
 """`drivee2e collect` through the CLI with the system's Mesa (the reference) and the Mesa that
 `drivee2e mesa --fetch` put in place, runs alternating, on a machine that draws with llvmpipe.
 
-    python scripts/bench_mesa.py [--data DIR | --clips 16 --seed 0] [--max-frames 30]
+    python scripts/dev/bench_mesa.py [--data DIR | --clips 16 --seed 0] [--max-frames 30]
         [--repeats 2] [--render FRAMES] [-- EXTRA COLLECT ARGS]
 
 The clips are `drivee2e synth --clips N --seed S` curated once (or the curated data root
