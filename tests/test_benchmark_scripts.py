@@ -187,7 +187,9 @@ def test_host_load_reads_the_cpus_shares_from_proc_stat(monkeypatch) -> None:
 def test_host_load_runs_the_command_and_exits_with_its_status() -> None:
     command = [sys.executable, str(REPOSITORY / "scripts" / "dev" / "host_load.py"), "--interval", "0.2",
                "--", sys.executable, "-c", "import sys, time; time.sleep(0.5); sys.exit(3)"]  # fmt: skip
-    result = subprocess.run(command, capture_output=True, text=True, cwd=REPOSITORY / "scripts" / "dev")
+    result = subprocess.run(
+        command, capture_output=True, text=True, cwd=REPOSITORY / "scripts" / "dev"
+    )
     assert result.returncode == 3, result.stderr
     assert "exit 3" in result.stdout and "CPUs, busy middle: user" in result.stdout
 
