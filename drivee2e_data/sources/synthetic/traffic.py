@@ -34,6 +34,9 @@ YELLOW_STOP_BRAKE_MPS2 = 3.5  # drivers stop at yellow when this deceleration su
 GAP_MARGIN_S = 1.5  # extra time a yielding vehicle keeps between itself and the other
 SPAWN_CLEARANCE_M = 8.0
 PEDESTRIAN_REACH_M = 2.5
+# walkers keep their centres this far apart (two 0.6 m boxes at any angle stay clear): a later
+# one queues behind an earlier one at a kerb, or keeps behind it on a crossing
+WALKER_GAP_M = 0.9
 HELD_MPS = 1.0  # a vehicle this slow and held by something ahead is not about to arrive
 FAR_AWAY_S = 9.0  # a vehicle further than this from a conflict zone cannot contest it yet
 
@@ -545,6 +548,8 @@ class TrafficSimulation:
                     s[row] = max(s[row], ped.enter_s_m - 0.05)
             if phase == "crossing" and self._vehicle_ahead_of(k, s, state):
                 speed = 0.0
+            if speed > 0.0 and self._walker_in_the_way(k, s[row] + speed * STEP_S, s, state):
+                speed = 0.0
             s[row] += speed * STEP_S
             v[row] = speed
             if phase == "crossing" and s[row] >= ped.leave_s_m:
@@ -552,6 +557,31 @@ class TrafficSimulation:
             if s[row] >= self.ped_s[k][-1]:
                 state[row] = 2
             self._ped_state[k] = phase
+
+    def _walker_xy(self, k: int, s_value: float) -> tuple[float, float]:
+        """Pedestrian k's position at arclength `s_value` on its path (its few straight legs)."""
+        path, along = self.pedestrians[k].path_m, self.ped_s[k]
+        return (
+            float(np.interp(s_value, along, path[:, 0])),
+            float(np.interp(s_value, along, path[:, 1])),
+        )
+
+    def _walker_in_the_way(self, k: int, s_next: float, s: NDArray, state: NDArray) -> bool:
+        """Whether pedestrian k's next step would bring it within `WALKER_GAP_M` of a walker
+        who came before it (an earlier one in the list: the earlier never waits for the later,
+        so no two wait for each other): it queues behind at a kerb, or keeps behind a slower
+        walker, instead of stepping into their box."""
+        offset = len(self.vehicles)
+        ax, ay = self._walker_xy(k, s_next)
+        hx, hy = self._walker_xy(k, s[offset + k])
+        for j in range(k):
+            if state[offset + j] != 1:
+                continue
+            ox, oy = self._walker_xy(j, s[offset + j])
+            gap = math.hypot(ax - ox, ay - oy)
+            if gap < WALKER_GAP_M and gap < math.hypot(hx - ox, hy - oy):
+                return True
+        return False
 
     def _vehicle_ahead_of(self, k: int, s: NDArray, state: NDArray) -> bool:
         """Whether a vehicle body is within reach of the pedestrian's next metre."""
