@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
 # Install everything, lint, and run the test suite. Fails on any failure.
+#   bash scripts/test.sh          everything (what CI runs)
+#   bash scripts/test.sh --quick  the edit-test loop: without the tests marked slow (end to end)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # the tests run the Ray backend too (on a local Ray) and the data module under Lightning
@@ -13,4 +15,8 @@ if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then
 fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-.venv/bin/python -m pytest -q
+if [ "${1:-}" = --quick ]; then
+    .venv/bin/python -m pytest -q -m "not slow"
+else
+    .venv/bin/python -m pytest -q
+fi

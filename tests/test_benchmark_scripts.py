@@ -112,6 +112,7 @@ def test_the_end_of_a_run_is_split_into_its_logs_and_its_workers_exits() -> None
     assert profile.end_parts(quiet) == pytest.approx({"logs": 0.0, "exits": 0.0, "end": 0.5})
 
 
+@pytest.mark.slow
 def test_processes_exit_measured_with_and_without_a_gl_context() -> None:
     # its own process: the processes are forked, and a parent holding a GL context (as this
     # one may, from other tests) would hand them one that cannot work

@@ -140,6 +140,7 @@ def test_labels_through_the_log_into_the_dataset(synthetic_root, tmp_path) -> No
     assert main(["export", "nuscenes", str(root), "--out", str(tmp_path / "nuscenes")]) == 0
 
 
+@pytest.mark.slow
 def test_map_dividers_lie_on_the_rendered_paint(synthetic_scenarios, synthetic_root) -> None:
     """Across each divider label, every 0.5 m, the painted line's middle (single or double)
     is within 10 cm of the label; dashes leave gaps, so a third of the points at least."""

@@ -192,6 +192,7 @@ def test_route_progress_does_not_jump_to_the_way_back_of_a_u_turn() -> None:
     assert reached < 5.0
 
 
+@pytest.mark.slow
 def test_expert_scores_the_log_on_the_synthetic_set(synthetic_scenarios, synthetic_root) -> None:
     maps = {}
     for scenario in synthetic_scenarios:

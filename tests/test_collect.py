@@ -61,6 +61,7 @@ def _wait_until(condition, process: subprocess.Popen, seconds: float = 240) -> N
         time.sleep(0.05)
 
 
+@pytest.mark.slow
 def test_sigkill_mid_clip_then_rerun_completes_every_log(synthetic_root: Path, tmp_path: Path):
     ids = store.scenario_ids(synthetic_root)[2:5]
     root = copy_clips(synthetic_root, tmp_path / "data", ids)
@@ -216,6 +217,7 @@ def test_boxes_seen_by_a_camera_are_in_its_image_and_mask(synthetic_root: Path):
             assert annotate.points_in_box(world_points, corners) == box.num_lidar_points
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["local", "ray"])
 def test_a_pool_of_workers_writes_the_same_payloads(
     backend: str, collected_root: Path, synthetic_root: Path, tmp_path: Path
@@ -262,6 +264,7 @@ def test_ctrl_c_stops_a_pool_at_once_and_leaves_no_partial_logs(
     assert not list(temporary.glob("drivee2e_twin_*"))
 
 
+@pytest.mark.slow
 def test_a_pool_run_that_ends_leaves_nothing_in_the_temp_folder(
     synthetic_root: Path, tmp_path: Path
 ):

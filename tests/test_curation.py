@@ -122,6 +122,7 @@ def test_ego_candidates_must_be_valid_throughout(synthetic_root: Path, synthetic
     assert picked == ("b", SubScenario.IPC_LFT)
 
 
+@pytest.mark.slow
 def test_curate_cli_labels_every_synthetic_clip_and_plots(
     synthetic_root: Path, tmp_path: Path, capsys
 ):
@@ -152,6 +153,7 @@ REAL_LABELS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not REALDATA.is_dir(), reason="../shared/realdata is absent")
 def test_real_samples_get_the_labels_checked_by_eye(tmp_path: Path):
     av2 = REALDATA / "argoverse2"

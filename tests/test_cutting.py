@@ -21,6 +21,7 @@ def recording_root(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_a_recording_gives_a_clip_per_ego_three_times_the_windows(recording_root: Path, tmp_path):
     from drivee2e_data.sources.synthetic.recording import generate_recording
 

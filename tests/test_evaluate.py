@@ -66,6 +66,7 @@ def test_evaluate_writes_episodes_summary_and_table(three_clips: Path, tmp_path:
     assert main([*args, "--agent", "no_such_module:Agent"]) == 2
 
 
+@pytest.mark.slow
 def test_record_mp4_is_the_front_camera_beside_the_top_view_at_every_step(
     three_clips: Path, tmp_path: Path
 ) -> None:
@@ -114,6 +115,7 @@ def test_same_agent_same_seed_same_scores(three_clips: Path, tmp_path: Path) -> 
     assert any(not row[1] for row in scores(tmp_path / "a").values())  # it fails somewhere
 
 
+@pytest.mark.slow
 def test_workers_give_the_same_scores(three_clips: Path, tmp_path: Path) -> None:
     base = ["evaluate", str(three_clips), "--split", "all", "--agent", "constant-velocity"]
     assert main([*base, "--out", str(tmp_path / "one")]) == 0
@@ -132,6 +134,7 @@ class SlowExpert(LogReplayExpert):
 """
 
 
+@pytest.mark.slow
 def test_sigkill_then_rerun_scores_every_episode_once(three_clips: Path, tmp_path: Path) -> None:
     (tmp_path / "slow_agent.py").write_text(SLOW_AGENT)
     out = tmp_path / "run"
@@ -157,6 +160,7 @@ def test_sigkill_then_rerun_scores_every_episode_once(three_clips: Path, tmp_pat
     assert all(r["success"] for r in rows)
 
 
+@pytest.mark.slow
 def test_an_agent_in_a_child_process_scores_what_it_scores_in_process(
     three_clips: Path, tmp_path: Path
 ) -> None:
@@ -199,6 +203,7 @@ if __name__ == "__main__":
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", sorted(BAD_AGENTS))
 def test_a_failing_child_ends_its_episode_not_the_run(
     three_clips: Path, tmp_path: Path, kind: str
@@ -242,6 +247,7 @@ def test_occlusion_variant_from_collected_logs(collected_root: Path, tmp_path: P
     ]
 
 
+@pytest.mark.slow
 def test_camera_policy_trains_and_drives_with_its_cameras(
     loader_root: Path, tmp_path: Path
 ) -> None:
@@ -256,6 +262,7 @@ def test_camera_policy_trains_and_drives_with_its_cameras(
     assert os.path.getsize(out / "table.md") > 0
 
 
+@pytest.mark.slow
 def test_a_served_network_drives_the_same_episodes_as_one_in_each_worker(
     loader_root: Path, tmp_path: Path
 ) -> None:

@@ -8,6 +8,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import pytest
 import shapely
 
 from drivee2e_data import splits, store
@@ -199,6 +200,7 @@ def test_a_u_turn_passes_pedestrians_waiting_at_its_corner() -> None:
     assert check_clip(scenario, site.intersection_map, rules) == ()
 
 
+@pytest.mark.slow
 def test_split_leaves_flagged_clips_out_unless_kept(tmp_path: Path, capsys) -> None:
     root = tmp_path / "data"
     assert main(["synth", "--out", str(root), "--clips", "4", "--seed", "0"]) == 0
@@ -216,6 +218,7 @@ def test_split_leaves_flagged_clips_out_unless_kept(tmp_path: Path, capsys) -> N
     assert flagged in splits.scenario_ids(splits.split_path(root, "all"), "all")
 
 
+@pytest.mark.slow
 def test_curate_checks_again_what_it_curated_and_a_rerun_resumes(tmp_path: Path, capsys) -> None:
     root = tmp_path / "data"
     assert main(["synth", "--out", str(root), "--clips", "2", "--seed", "0"]) == 0

@@ -206,6 +206,7 @@ def _raised_argoverse2(tmp_path: Path, offset_m: float, slope: float) -> Path:
     return folder
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("offset_m", [25.0, -25.0])
 @pytest.mark.parametrize("kind", ["scenarionet", "av2"])
 def test_each_importer_that_reads_z_lands_a_raised_sloped_scene_on_the_ground(

@@ -107,6 +107,7 @@ def test_sweep_in_a_twin_sees_road_paint_and_agents(tmp_path):
     assert len(result.points_m) > 50_000  # most downward beams return
 
 
+@pytest.mark.slow
 def test_depth_image_lidar_agrees_with_ray_casting(tmp_path):
     """The same frame of a synthetic twin swept both ways: ranges on hits both see within 2 cm
     (median), the same rings, and the same number of points on every box with 50 or more."""

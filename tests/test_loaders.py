@@ -252,6 +252,7 @@ def test_data_module_serves_each_split(loader_root: Path) -> None:
     assert sum(len(b["scene_token"]) for b in module.test_dataloader()) == 36
 
 
+@pytest.mark.slow
 def test_loaders_do_not_import_the_simulator() -> None:
     code = (
         "import sys, drivee2e_data.loaders, drivee2e_data.metrics.openloop, drivee2e_data.export.nuscenes;"
@@ -312,6 +313,7 @@ def test_unknown_split_and_camera_are_refused(loader_root: Path) -> None:
         )
 
 
+@pytest.mark.slow
 def test_committed_quickstart_manifest_is_what_split_makes(
     synthetic_root: Path, tmp_path: Path
 ) -> None:

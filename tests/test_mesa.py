@@ -226,6 +226,7 @@ print(gl_version())
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(_fetched() is None, reason="no Mesa fetched here (drivee2e mesa --fetch)")
 def test_fetched_mesa_draws_what_the_systems_does(tmp_path: Path) -> None:
     folder = _fetched()
@@ -254,6 +255,7 @@ def test_fetched_mesa_draws_what_the_systems_does(tmp_path: Path) -> None:
     assert differ.mean() < 0.002  # a few pixels where a triangle's edge meets a pixel centre
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(_fetched() is None, reason="no Mesa fetched here (drivee2e mesa --fetch)")
 def test_bench_mesa_compares_both_through_the_command(synthetic_root: Path, tmp_path: Path):
     root = copy_clips(synthetic_root, tmp_path / "data", store.scenario_ids(synthetic_root)[:2])

@@ -141,6 +141,7 @@ def _sync_worker(
     dist.destroy_process_group()
 
 
+@pytest.mark.slow
 def test_metric_on_two_processes_equals_one(tmp_path: Path) -> None:
     truth, mask = _truth(4)
     generator = torch.Generator().manual_seed(3)

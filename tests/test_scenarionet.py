@@ -64,6 +64,7 @@ def test_nuscenes_positions_are_the_files_minus_the_offset(seaport):
 
 
 @needs_samples
+@pytest.mark.slow
 def test_shared_scenes_import_curate_and_render(tmp_path: Path, capsys):
     assert main(["import", "scenarionet", str(SAMPLES), "--out", str(tmp_path)]) == 0
     ids = store.scenario_ids(tmp_path)

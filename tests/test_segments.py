@@ -118,6 +118,7 @@ def test_gpus_are_dealt_round_robin():
             parse_gpus(bad)
 
 
+@pytest.mark.slow
 def test_a_log_from_segments_is_byte_identical_to_one_workers(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
@@ -143,6 +144,7 @@ def test_a_log_from_segments_is_byte_identical_to_one_workers(
     assert not folder.exists()  # the segments go once the log is written
 
 
+@pytest.mark.slow
 def test_a_log_grows_from_its_head_as_its_segments_finish_and_ends_the_same_as_one_workers(
     collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch
 ):
@@ -221,6 +223,7 @@ def test_a_failed_append_is_reported_when_the_log_is_finished_and_the_head_is_ke
     assert log_path(root, scenario_id).read_bytes() == alone.read_bytes()
 
 
+@pytest.mark.slow
 def test_a_crashed_run_resumes_from_its_finished_segments(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
@@ -301,6 +304,7 @@ def test_heads_and_segments_of_frames_made_other_bytes_by_an_earlier_version_are
     assert not list(segments.segments_dir(root, scenario_id).iterdir())
 
 
+@pytest.mark.slow
 def test_a_segment_a_stopped_machine_left_with_holes_is_collected_again(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
@@ -335,6 +339,7 @@ def test_a_segment_a_stopped_machine_left_with_holes_is_collected_again(
     assert (root / "logs" / f"{scenario_id}.mcap").read_bytes() == alone.read_bytes()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_run_stopped_between_its_last_segment_and_the_log_writes_the_log_on_rerun(
     collected_root: Path, synthetic_root: Path, tmp_path: Path, workers: int
@@ -381,6 +386,7 @@ def test_segments_that_do_not_make_the_clip_are_a_clear_error(synthetic_root: Pa
     shutil.rmtree(segments.segments_dir(root, scenario_id))
 
 
+@pytest.mark.slow
 def test_a_pool_cuts_one_long_clip_across_its_workers(
     collected_root: Path, synthetic_root: Path, tmp_path: Path
 ):
@@ -481,6 +487,7 @@ def test_an_idle_worker_takes_what_ends_a_job_soonest():
     assert balance.split_order([far, on_a], "m1", maps, costs) == [(far, 3), (on_a, 1)]
 
 
+@pytest.mark.slow
 def test_a_split_unit_still_gives_the_one_worker_log(
     collected_root: Path, synthetic_root: Path, tmp_path: Path, monkeypatch
 ):
@@ -597,6 +604,7 @@ def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
     assert slots.acquire(timeout=5)  # given back once made
 
 
+@pytest.mark.slow
 def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
     """`_give_back`, the pool's last job for each worker: the idle worker gives its context back
     at once and is held until the busy one has done the same after its job (so neither takes

@@ -306,6 +306,7 @@ def test_generated_buildings_keep_off_the_road_and_repeat():
         assert shapely.Polygon(building.footprint_m).distance(road) >= BUILDING_SETBACK_M - 1e-6
 
 
+@pytest.mark.slow
 def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
     pipeline.synthesize(tmp_path, clips=3, seed=5, intersections=1)
     scenarios = [store.read_scenario(tmp_path, i) for i in store.scenario_ids(tmp_path)]
@@ -324,6 +325,7 @@ def test_one_twin_serves_all_clips_of_its_map(tmp_path: Path):
             world.replay(other)
 
 
+@pytest.mark.slow
 def test_vehicles_of_one_blueprint_share_a_collision_shape_that_outlives_a_replay(tmp_path: Path):
     """One collision shape per model geometry in a world: the cars of a blueprint share one, a
     replay's bodies take the shapes made before, and rays hit each body where it stands."""

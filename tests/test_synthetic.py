@@ -23,6 +23,7 @@ def _files(root: Path) -> dict[str, bytes]:
     }
 
 
+@pytest.mark.slow
 def test_same_seed_gives_identical_files(synthetic_root: Path, tmp_path: Path):
     """The first three clips of the default set, made again in a fresh run, are byte-identical."""
     pipeline.synthesize(tmp_path / "again", clips=3, seed=0)
@@ -33,6 +34,7 @@ def test_same_seed_gives_identical_files(synthetic_root: Path, tmp_path: Path):
         assert original[name] == content, name
 
 
+@pytest.mark.slow
 def test_other_seed_gives_other_files(synthetic_root: Path, tmp_path: Path):
     pipeline.synthesize(tmp_path / "seed1", clips=1, seed=1)
     seed1 = _files(tmp_path / "seed1")
@@ -43,6 +45,7 @@ def test_other_seed_gives_other_files(synthetic_root: Path, tmp_path: Path):
     assert seed0["maps/synth_s0_i00.json"] != seed1["maps/synth_s1_i00.json"]
 
 
+@pytest.mark.slow
 def test_only_some_clips_are_the_whole_sets_files(synthetic_root: Path, tmp_path: Path, capsys):
     """`synth --only` writes the named clips of the set and nothing else, each byte-identical
     to the whole set's; a clip outside the set is one clear error."""
@@ -70,6 +73,7 @@ def test_rerun_skips_finished_clips(synthetic_root: Path):
     assert {p: p.stat().st_mtime_ns for p in synthetic_root.rglob("*.parquet")} == before
 
 
+@pytest.mark.slow
 def test_layouts_cover_three_and_four_way_with_one_to_three_lanes():
     sites = [synthetic.make_site(7, index) for index in range(10)]
     arm_counts = {len(site.layout.arms) for site in sites}
@@ -208,6 +212,7 @@ def test_synthesize_rejects_bad_counts(tmp_path: Path, clips: int):
         pipeline.synthesize(tmp_path, clips=clips, seed=0)
 
 
+@pytest.mark.slow
 def test_a_target_the_site_cannot_stage_falls_back_to_the_next() -> None:
     """Clip 91 of seed 0 targets COV-LFT on a site with no conflict to stage it (found making
     the 800-clip benchmark set): it takes the next target instead of stopping the run."""

@@ -28,6 +28,7 @@ def test_the_trunk_has_resnet18s_parameters_and_blocks_start_as_the_identity():
     assert strided(x).shape == (2, 16, 3, 3)
 
 
+@pytest.mark.slow
 def test_the_policy_learns_plans_that_follow_the_command(tmp_path: Path, monkeypatch):
     """Eight samples whose future goes left (command left) or right (command right): a small
     trunk fits them to decimetres, and its speed head learns the speed."""
@@ -59,6 +60,7 @@ def test_the_policy_learns_plans_that_follow_the_command(tmp_path: Path, monkeyp
     assert (seen_speed - 4.0).abs().max() < 0.5
 
 
+@pytest.mark.slow
 def test_tcp_trains_resumes_plans_and_drives_a_clip(loader_root: Path, tmp_path: Path) -> None:
     checkpoint = tmp_path / "tcp.pt"
     train = ["train", "tcp", str(loader_root), "--out", str(checkpoint), "--epochs", "2",
