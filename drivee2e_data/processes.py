@@ -118,3 +118,14 @@ def clean_up_when_stopped(clean_up: Callable[[], None]) -> None:
         os._exit(128 + signum)
 
     signal.signal(signal.SIGTERM, stop)
+
+
+def process_running(pid: int) -> bool:
+    """Whether a process with this id runs (one of another user counts as running)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -40,6 +40,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.loaders import sample as labels
 from drivee2e_data.loaders.dataset import LOGS_FOLDER, DriveE2EDataset
 from drivee2e_data.logs.reader import LogReader
+from drivee2e_data.processes import process_running
 
 CACHE_FOLDER = "features"
 # what a clip's folder holds and how: a change here makes every cache another folder
@@ -277,18 +278,8 @@ def _remove_abandoned(folder: Path) -> None:
     """Temporary clip folders of builds that were killed (their process is gone)."""
     for temporary in folder.glob(".*.tmp"):
         pid = temporary.name.rsplit(".", 2)[-2]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_running(int(pid)):
             shutil.rmtree(temporary, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _fsync_folder(folder: Path) -> None:

@@ -16,6 +16,7 @@ import shapely
 from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import IntersectionMap
+from drivee2e_data.processes import process_running
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.scenery import WearRaster
 from drivee2e_data.sim.twin_plan import (
@@ -45,20 +46,9 @@ def mesh_folder(parent: Path | None = None) -> Path:
     pattern = re.compile(rf"{MESH_FOLDER_PREFIX}(\d+)_")
     for folder in parent.glob(f"{MESH_FOLDER_PREFIX}*_*"):
         match = pattern.match(folder.name)
-        if match and not _running(int(match.group(1))):
+        if match and not process_running(int(match.group(1))):
             shutil.rmtree(folder, ignore_errors=True)
     return Path(tempfile.mkdtemp(prefix=f"{MESH_FOLDER_PREFIX}{os.getpid()}_", dir=parent))
-
-
-def _running(pid: int) -> bool:
-    """Whether a process with this id runs (one of another user counts as running)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 @dataclass
