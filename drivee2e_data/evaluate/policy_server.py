@@ -65,7 +65,11 @@ def serve(
     import torch
 
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))
+    agent, failure = None, ""
+    try:
+        agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))
+    except Exception as error:  # every episode then ends with this reason, none waits
+        failure = f"the policy server could not build agent {agent_name!r}: {error}"
     while True:
         first = requests.get()
         if first is None:
@@ -88,6 +92,10 @@ def serve(
                 break
             batch.append(item)
         workers = [worker for worker, _ in batch]
+        if agent is None:
+            for worker in workers:
+                replies[worker].put(failure)
+            continue
         try:
             stacked = {key: np.stack([inputs[key] for _, inputs in batch]) for key in batch[0][1]}
             plans = np.asarray(agent.forward_batch(stacked), np.float64)
