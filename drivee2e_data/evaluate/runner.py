@@ -312,7 +312,8 @@ def _init_worker(
     counter: Any = None, servers: tuple[Any, ...] = (), gpus: tuple[int, ...] = ()
 ) -> None:
     """A pool worker's start: its number (from `counter`), the policy server and the EGL GPU
-    it uses (round robin: the worker draws and infers on the same GPU), one thread each."""
+    it uses (each round robin over its kind: EGL's and CUDA's orders of the GPUs are their
+    own), one thread each."""
     global _worker_number, _server
     if counter is not None:
         with counter.get_lock():
