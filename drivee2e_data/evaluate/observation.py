@@ -6,11 +6,14 @@ Two ways to the images, chosen by what the agent declares:
 - `image_size` alone: JPEG bytes per camera at that size, the collection's own path (the same
   bytes as the log where the pose is the logged one).
 - `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
-  to it): each camera is drawn at the size the Dataset's decoder reads the JPEG at (1/2, 1/4 or
-  1/8 of `image_size`, reduced in the DCT), its noise and rain made at the full size and
-  averaged (`sensors.camera.with_conditions_reduced`), then area-resized to `input_size` as
-  the Dataset does: planar RGB `(3, H, W)` uint8, no JPEG either way, at a fraction of the
-  pixels. Measured against the logged images (docs/closedloop.md): PSNR above
+  to it): each camera is drawn at the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8)
+  that keeps at least `SUPERSAMPLE` times `input_size`, its noise and rain made at the full
+  size and averaged (`sensors.camera.with_conditions_reduced`), then area-resized to
+  `input_size`: planar RGB `(3, H, W)` uint8, no JPEG either way, at a fraction of the pixels.
+  The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
+  and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
+  faint continuous line; drawn at the input size itself it would break into dashes where it
+  crosses pixel centres: twice the input's resolution, averaged, is what keeps them alike. Measured against the logged images (docs/closedloop.md): PSNR above
   `PARITY_PSNR_DB` on every weather and time of day (tested).
 """
 
@@ -41,14 +44,17 @@ from drivee2e_data.sim.world import World
 JPEG_QUALITY = 85  # as collection's default
 # the cheap path's images against the logged ones decoded as the Dataset decodes them, per
 # camera image (docs/closedloop.md has the measured spread)
-PARITY_PSNR_DB = 25.0
+PARITY_PSNR_DB = 28.0
+# drawn at no less than this many times the input's width and height before the area resize
+SUPERSAMPLE = 2
 
 
 class SensorObserver:
     """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
     agent whose training images were collected at `image_size` (width, height; None for
-    1600x900); with `input_size`, drawn small and served as the decoded pixels at that size
-    (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
+    1600x900); with `input_size`, drawn small (at least `supersample` times `input_size`) and
+    served as the decoded pixels at that size (`Observation.pixels`) instead of JPEG bytes
+    (`Observation.images`)."""
 
     def __init__(
         self,
@@ -56,6 +62,7 @@ class SensorObserver:
         sensors: tuple[str, ...],
         image_size: tuple[int, int] | None,
         input_size: tuple[int, int] | None = None,
+        supersample: int = SUPERSAMPLE,
     ) -> None:
         cameras = tuple(name for name in sensors if name != LIDAR)
         self.world, self.with_lidar = world, LIDAR in sensors
@@ -65,7 +72,8 @@ class SensorObserver:
         if world.renderer != "gl":  # pybullet's renderers draw no weather: the JPEG path
             self.input_size = None
         if self.input_size is not None:
-            factor = reduction(self.full_size, self.input_size)
+            wanted = (supersample * self.input_size[0], supersample * self.input_size[1])
+            factor = reduction(self.full_size, wanted)
             drawn = (self.full_size[0] // factor, self.full_size[1] // factor)
         self.rig = configured_rig(SuiteOptions(cameras=cameras, image_size=self.full_size))
         self.drawn_rig = configured_rig(SuiteOptions(cameras=cameras, image_size=drawn))

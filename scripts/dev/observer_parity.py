@@ -1,9 +1,11 @@
 """The closed-loop observer against the logged frames, on collected logs: for every sensor frame
 of each clip, the expert's logged pose through the observer's JPEG path (bytes equal to the log?
-PSNR of the decoded images) and its cheap path (drawn at the size the Dataset decodes at,
-PSNR against the logged JPEG decoded to the agent's input size), and the time of each path.
+PSNR of the decoded images) and its cheap path (drawn at twice the input size or more,
+PSNR against the logged JPEG decoded to the agent's input size), and the time of each path;
+`--supersample 1 2` measures the cheap path drawn at (at least) each multiple of the input
+size side by side, frame by frame (2 is the observer's default).
 
-    python scripts/dev/observer_parity.py DATA --input 128x72 [--only CLIP ...]
+    python scripts/dev/observer_parity.py DATA --input 128x72 [--supersample 1 2] [--only CLIP ...]
 
 Prints one line per clip (weather, time of day, equal JPEGs, PSNR min and median, ms a step of
 three front cameras each way) and the spread over all clips; docs/closedloop.md quotes it.
@@ -19,7 +21,7 @@ import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from drivee2e_data import store
-from drivee2e_data.evaluate.observation import SensorObserver
+from drivee2e_data.evaluate.observation import SUPERSAMPLE, SensorObserver
 from drivee2e_data.evaluate.traffic import Traffic
 from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.logs import topics
@@ -36,11 +38,14 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10.0 * np.log10(255.0**2 / max(mse, 1e-12))
 
 
-def clip_parity(root: Path, clip: str, input_size: tuple[int, int]) -> dict:
+def clip_parity(
+    root: Path, clip: str, input_size: tuple[int, int], supersamples: tuple[int, ...]
+) -> dict:
     scenario = store.read_scenario(root, clip)
     motion, traffic, ego = ego_motion(scenario), Traffic(scenario), scenario.ego
     intersection_map = store.read_map(root, scenario.map_id)
-    result = {"equal": 0, "images": 0, "exact": [], "cheap": [], "exact_s": [], "cheap_s": []}
+    result: dict = {"equal": 0, "images": 0, "exact": [], "exact_s": []}
+    result |= {("cheap", k): [] for k in supersamples} | {("cheap_s", k): [] for k in supersamples}
     with (
         World(intersection_map, scenario, "auto") as world,
         LogReader(root / "logs" / f"{clip}.mcap") as log,
@@ -48,7 +53,7 @@ def clip_parity(root: Path, clip: str, input_size: tuple[int, int]) -> dict:
         calibration = log.rig["cameras"]["CAM_FRONT"]
         full = (int(calibration["width"]), int(calibration["height"]))
         exact = SensorObserver(world, FRONT, full)
-        cheap = SensorObserver(world, FRONT, full, input_size)
+        cheap = {k: SensorObserver(world, FRONT, full, input_size, k) for k in supersamples}
         for logged_frame in log.sensor_frames:
             frame = logged_frame - log.first_frame
             state = VehicleState(float(motion.x_m[frame]), float(motion.y_m[frame]),
@@ -61,9 +66,11 @@ def clip_parity(root: Path, clip: str, input_size: tuple[int, int]) -> dict:
             start = time.perf_counter()
             jpegs, _ = exact.observe(frame, frame, state, z, poses, signals, centre)
             result["exact_s"].append(time.perf_counter() - start)
-            start = time.perf_counter()
-            pixels, _ = cheap.observe(frame, frame, state, z, poses, signals, centre)
-            result["cheap_s"].append(time.perf_counter() - start)
+            pixels = {}
+            for k, observer in cheap.items():
+                start = time.perf_counter()
+                pixels[k], _ = observer.observe(frame, frame, state, z, poses, signals, centre)
+                result["cheap_s", k].append(time.perf_counter() - start)
             raw = log.frame_raw(logged_frame, [topics.image_topic(c) for c in FRONT])
             for camera in FRONT:
                 logged = CompressedImage.FromString(raw[topics.image_topic(camera)]).data
@@ -72,7 +79,9 @@ def clip_parity(root: Path, clip: str, input_size: tuple[int, int]) -> dict:
                 result["exact"].append(
                     psnr(decode_cpu(jpegs[camera], full), decode_cpu(logged, full))
                 )
-                result["cheap"].append(psnr(pixels[camera], decode_cpu(logged, full, input_size)))
+                reference = decode_cpu(logged, full, input_size)
+                for k in supersamples:
+                    result["cheap", k].append(psnr(pixels[k][camera], reference))
     result["conditions"] = (
         scenario.conditions.weather.value,
         scenario.conditions.time_of_day.value,
@@ -84,23 +93,35 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path)
     parser.add_argument("--input", default="128x72", help="the agent's input size, WxH")
+    parser.add_argument("--supersample", type=int, nargs="+", default=[SUPERSAMPLE])
     parser.add_argument("--only", nargs="+", default=None)
     args = parser.parse_args()
     input_size = tuple(int(v) for v in args.input.split("x"))
+    supersamples = tuple(args.supersample)
     clips = args.only or sorted(p.stem for p in (args.data / "logs").glob("*.mcap"))
-    exact, cheap = [], []
+    exact: list[float] = []
+    cheap: dict[int, list[float]] = {k: [] for k in supersamples}
+    seconds: dict[int, list[float]] = {k: [] for k in supersamples}
     for clip in clips:
-        r = clip_parity(args.data, clip, input_size)  # type: ignore[arg-type]
+        r = clip_parity(args.data, clip, input_size, supersamples)  # type: ignore[arg-type]
         exact += r["exact"]
-        cheap += r["cheap"]
+        paths = []
+        for k in supersamples:
+            cheap[k] += r["cheap", k]
+            seconds[k] += r["cheap_s", k]
+            paths.append(f"x{k} PSNR min {min(r['cheap', k]):.1f} median "
+                         f"{np.median(r['cheap', k]):.1f} dB, {1000 * np.median(r['cheap_s', k]):.0f} ms")  # fmt: skip
         print(f"{clip}  {r['conditions'][0]:8s} {r['conditions'][1]:13s} JPEG path "
-              f"{r['equal']}/{r['images']} equal, PSNR min {min(r['exact']):.1f}; cheap path "
-              f"PSNR min {min(r['cheap']):.1f} median {np.median(r['cheap']):.1f} dB; ms a step "
-              f"{1000 * np.median(r['exact_s']):.0f} -> {1000 * np.median(r['cheap_s']):.0f}",
+              f"{r['equal']}/{r['images']} equal, PSNR min {min(r['exact']):.1f}, "
+              f"{1000 * np.median(r['exact_s']):.0f} ms a step; cheap path " + "; ".join(paths),
               flush=True)  # fmt: skip
-    print(f"all {len(cheap)} images: cheap path PSNR min {min(cheap):.1f}, 5th percentile "
-          f"{np.percentile(cheap, 5):.1f}, median {np.median(cheap):.1f} dB; JPEG path min "
-          f"{min(exact):.1f} dB")  # fmt: skip
+    print(f"all {len(exact)} images: JPEG path PSNR min {min(exact):.1f} dB")
+    reference = supersamples[0]
+    for k in supersamples:
+        ratio = np.median(seconds[k]) / np.median(seconds[reference])
+        print(f"cheap path drawn at >= {k}x the input: PSNR min {min(cheap[k]):.1f}, 5th "
+              f"percentile {np.percentile(cheap[k], 5):.1f}, median {np.median(cheap[k]):.1f} dB; "
+              f"{1000 * np.median(seconds[k]):.1f} ms a step (median), {ratio:.2f}x x{reference}'s")  # fmt: skip
 
 
 if __name__ == "__main__":
