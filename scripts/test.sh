@@ -2,8 +2,6 @@
 # Install everything, lint, and run the test suite. Fails on any failure.
 #   bash scripts/test.sh          everything (what CI runs)
 #   bash scripts/test.sh --quick  the edit-test loop: without the tests marked slow (end to end)
-# Test files are spread over a worker per core (pytest-xdist, a file's tests in one worker, so
-# its module fixtures are built once); TEST_WORKERS=0 runs them in this process, one by one.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # the tests run the Ray backend too (on a local Ray) and the data module under Lightning
@@ -17,9 +15,8 @@ if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then
 fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-PARALLEL=(-n "${TEST_WORKERS:-auto}" --dist loadfile)
 if [ "${1:-}" = --quick ]; then
-    .venv/bin/python -m pytest -q "${PARALLEL[@]}" -m "not slow"
+    .venv/bin/python -m pytest -q -m "not slow"
 else
-    .venv/bin/python -m pytest -q "${PARALLEL[@]}"
+    .venv/bin/python -m pytest -q
 fi
