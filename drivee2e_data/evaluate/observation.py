@@ -13,8 +13,9 @@ Two ways to the images, chosen by what the agent declares:
   The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
   and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
   faint continuous line; drawn at the input size itself it would break into dashes where it
-  crosses pixel centres: twice the input's resolution, averaged, is what keeps them alike. Measured against the logged images (docs/closedloop.md): PSNR above
-  `PARITY_PSNR_DB` on every weather and time of day (tested).
+  crosses pixel centres: twice the input's resolution, averaged, is what keeps them alike.
+  Measured against the logged images (docs/closedloop.md): PSNR above `PARITY_PSNR_DB` on
+  every weather and time of day (tested).
 """
 
 from __future__ import annotations
