@@ -92,6 +92,11 @@ def test_a_device_that_is_not_there_is_one_clear_error(loader_root: Path, tmp_pa
         code = main(["train", "tcp", str(loader_root), "--out", str(out), "--device", wanted])
         assert code != 0 and message in capsys.readouterr().err
         assert not out.exists()
+        plans = tmp_path / "plans.parquet"  # the open-loop planner takes the same choice
+        code = main(["predict", str(loader_root), "--model", "tcp", "--checkpoint", str(out),
+                     "--out", str(plans), "--device", wanted])  # fmt: skip
+        assert code != 0 and message in capsys.readouterr().err
+        assert not plans.exists()
 
 
 def test_the_closed_loop_device_comes_from_the_environment(monkeypatch):

@@ -261,9 +261,12 @@ class CameraPlanner:
 
     name = "camera"
 
-    def __init__(self, checkpoint: Path) -> None:
-        self.model, _ = load(Path(checkpoint))
+    def __init__(self, checkpoint: Path, device: str = "cpu") -> None:
+        model, _ = load(Path(checkpoint))
+        self.device = torch.device(device)
+        self.model = model.to(self.device)
 
     @torch.no_grad()
     def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self.model(batch["img"], batch_vector(batch)).double()
+        batch = training.to_device(batch, self.device)
+        return self.model(batch["img"], batch_vector(batch)).double().cpu()

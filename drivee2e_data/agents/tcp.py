@@ -210,10 +210,13 @@ class TCPPlanner:
 
     name = "tcp"
 
-    def __init__(self, checkpoint: Path) -> None:
-        self.model, _ = load(Path(checkpoint))
+    def __init__(self, checkpoint: Path, device: str = "cpu") -> None:
+        model, _ = load(Path(checkpoint))
+        self.device = torch.device(device)
+        self.model = model.to(self.device)
 
     @torch.no_grad()
     def plan(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        batch = training.to_device(batch, self.device)
         plan, _ = self.model(batch["img"], camera.batch_vector(batch))
-        return plan.double()
+        return plan.double().cpu()

@@ -156,6 +156,14 @@ def loader_workers(source: Rows) -> int:
     return min(8, max(cores - 1, 0))
 
 
+def to_device(batch: dict[str, Any], device: torch.device | str) -> dict[str, Any]:
+    """A batch's tensors on `device` (other values as they are)."""
+    return {
+        key: value.to(device, non_blocking=True) if isinstance(value, torch.Tensor) else value
+        for key, value in batch.items()
+    }
+
+
 def fit(
     model: nn.Module,
     data: Rows | dict[str, torch.Tensor],

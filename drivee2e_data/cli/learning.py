@@ -98,6 +98,12 @@ def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
         "--checkpoint", type=Path, help="the model's checkpoint (admlp, camera, tcp)"
     )
     predict.add_argument("--out", type=Path, required=True, help="predictions Parquet to write")
+    predict.add_argument(
+        "--device",
+        default="auto",
+        help="where the network plans (auto: the camera models on cuda where there is one, else "
+        "the cpu; cuda:N picks a GPU). A GPU's arithmetic differs from the CPU's in the last bits",
+    )
     _cache_options(predict)
 
 
@@ -212,8 +218,6 @@ def run_cache(args: argparse.Namespace) -> int:
 def run_train(args: argparse.Namespace) -> int:
     import functools
 
-    import torch
-
     from drivee2e_data.agents import admlp, camera, tcp
     from drivee2e_data.agents.training import TrainOptions
 
@@ -221,13 +225,7 @@ def run_train(args: argparse.Namespace) -> int:
     batch_size = args.batch_size or BATCH_SIZES[args.model]
     learning_rate = args.learning_rate or LEARNING_RATES[args.model]
     options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
-    device = args.device
-    if device == "auto":  # the camera models where there is a GPU; AD-MLP's MLP on the CPU
-        device = "cuda" if torch.cuda.is_available() and args.model != "admlp" else "cpu"
-    if device != "cpu" and not device.startswith("cuda"):
-        raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
+    device = _device(args.device, args.model)
     if args.model == "camera":
         trainer = functools.partial(camera.train, device=device)
     elif args.model == "tcp":
@@ -253,6 +251,20 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _device(device: str, model: str) -> str:
+    """`--device` resolved: auto is the camera models on the GPU where torch sees one, AD-MLP's
+    small MLP (and constant velocity) on the CPU."""
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() and model in ("camera", "tcp") else "cpu"
+    if device != "cpu" and not device.startswith("cuda"):
+        raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
+    return device
+
+
 def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     from drivee2e_data.agents import admlp, camera, tcp
     from drivee2e_data.agents.constant_velocity import ConstantVelocity
@@ -265,9 +277,10 @@ def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         )
     if args.model == "admlp":
         return admlp.load(args.checkpoint)
+    device = _device(args.device, args.model)
     if args.model == "tcp":
-        return tcp.TCPPlanner(args.checkpoint)
-    return camera.CameraPlanner(args.checkpoint)
+        return tcp.TCPPlanner(args.checkpoint, device)
+    return camera.CameraPlanner(args.checkpoint, device)
 
 
 def run_predict(args: argparse.Namespace) -> int:

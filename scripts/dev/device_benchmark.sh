@@ -3,11 +3,13 @@
 # (scripts/benchmark.sh) with the settings given in the environment, in the background (setsid)
 # so that a run longer than one device call goes on between calls; the GPU's utilisation logged
 # every second. Then `bash scripts/dev/device_benchmark.sh --wait SECONDS` waits, prints progress,
-# and packs what a person reads (report, stage times, summaries, GPU log) into $OUT.
+# and packs what a person reads (report, stage times, summaries, logs, GPU log) into $OUT, the
+# report of what is scored so far where the run has not finished.
 #   bash scripts/dev/device_benchmark.sh            # start (run from the repository root)
 #   bash scripts/dev/device_benchmark.sh --wait 540 # later calls
 set -uo pipefail
 RUN=/tmp/bench
+HERE="$(cd "$(dirname "$0")" && pwd)"
 if [ "${1:-}" != --wait ]; then
     for f in .gl/*.deb; do dpkg -x "$f" /; done
     ldconfig
@@ -16,7 +18,7 @@ if [ "${1:-}" != --wait ]; then
     echo "environment: $(( $(date +%s) - start )) s"
     # shellcheck disable=SC1091
     source /tmp/drivee2e_env
-    nvidia-smi --query-gpu=timestamp,index,utilization.gpu,memory.used --format=csv,noheader \
+    setsid nvidia-smi --query-gpu=timestamp,index,utilization.gpu,memory.used --format=csv,noheader \
         -l 1 > /tmp/gpu_util.csv 2>/dev/null &
     repo=$(pwd)
     cd /tmp || exit 1
@@ -31,10 +33,19 @@ while [ "$(date +%s)" -lt "$deadline" ] && ! grep -q "^## Benchmark v1" /tmp/ben
 done
 grep "^== " /tmp/bench.log | tail -40
 grep -i -E "error|traceback" /tmp/bench.log | head -5
-if grep -q "^## Benchmark v1" /tmp/bench.log; then
+# what a person reads, finished or not (a later call brings a newer copy)
+finished=no
+grep -q "^## Benchmark v1" /tmp/bench.log && finished=yes
+echo "finished: $finished"
+if [ "$finished" = no ] && [ -d "$RUN/runs" ]; then  # the report of what is scored so far
+    (cd /tmp && python3 "$HERE/../benchmark_report.py" "$RUN" > /tmp/partial_report.txt 2>&1)
+    cp /tmp/partial_report.txt "$OUT/report.txt"
+else
     cp /tmp/bench.log "$OUT/report.txt"
-    cp /tmp/gpu_util.csv "$OUT/gpu_util.csv" 2>/dev/null
-    (cd "$RUN" && tar -czf "$OUT/results.tar.gz" times.tsv report.md scaling.png \
-        runs/*/summary.json runs/*/episodes.parquet openloop/*.json 2>/dev/null)
-    ls -la "$OUT"
 fi
+cp /tmp/bench.log "$OUT/bench.log" 2>/dev/null
+cp /tmp/gpu_util.csv "$OUT/gpu_util.csv" 2>/dev/null
+(cd "$RUN" && tar -czf "$OUT/results.tar.gz" times.tsv report.md scaling.png manifests \
+    runs/*/summary.json runs/*/episodes.parquet openloop/*.json logs checkpoints/*.done \
+    checkpoints/*.failed 2>/dev/null)
+ls -la "$OUT"
