@@ -48,4 +48,7 @@ cp /tmp/gpu_util.csv "$OUT/gpu_util.csv" 2>/dev/null
 (cd "$RUN" && tar -czf "$OUT/results.tar.gz" times.tsv report.md scaling.png manifests \
     runs/*/summary.json runs/*/episodes.parquet openloop/*.json logs checkpoints/*.done \
     checkpoints/*.failed 2>/dev/null)
+# the first eight episodes' MP4s of each recorded run (the largest size's), to look at
+(cd "$RUN" && find runs -path "*/records/*.mp4" 2>/dev/null | sort | awk -F/ 'n[$2]++ < 8' \
+    | tar -cf "$OUT/episodes_mp4.tar" -T - 2>/dev/null)
 ls -la "$OUT"
