@@ -28,7 +28,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.loaders.cache import FeatureCache
 from drivee2e_data.loaders.collate import collate
 from drivee2e_data.loaders.dataset import DriveE2EDataset
-from drivee2e_data.metrics.openloop import CONVENTIONS, OpenLoopMetric
+from drivee2e_data.metrics import CONVENTIONS
 
 PREDICTION_SCHEMA = pa.schema(
     [
@@ -139,6 +139,10 @@ def score(
     """Metrics overall (`all`) and per behaviour category, over the samples that have a plan:
     of a Dataset's samples, or of the scoring feature cache's (`loaders.cache.SCORING`: the
     same values, gathered from memory)."""
+    # torchmetrics (and the scipy it loads) only where scores are made: `predict` does without
+    # (2.4 s of a command's start on 2 cores)
+    from drivee2e_data.metrics.openloop import OpenLoopMetric
+
     if convention not in CONVENTIONS:
         raise DriveE2EError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
     steps = dataset.horizons.future_steps
