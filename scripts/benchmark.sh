@@ -99,12 +99,10 @@ openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]
     OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" predict "$DATA" --split val \
         --split-name "$manifest" --model "$model" "${checkpoint[@]}" \
         --out "$OUT/openloop/$name.parquet" > "$OUT/logs/openloop-$name.log" 2>&1
-    for convention in stp3 uniad; do
-        OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" openloop "$DATA" --split val \
-            --split-name "$manifest" --predictions "$OUT/openloop/$name.parquet" \
-            --convention "$convention" --json "$OUT/openloop/${name}_$convention.json" \
-            >> "$OUT/logs/openloop-$name.log" 2>&1
-    done
+    OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" openloop "$DATA" --split val \
+        --split-name "$manifest" --predictions "$OUT/openloop/$name.parquet" \
+        --convention stp3 uniad --json "$OUT/openloop/${name}_{convention}.json" \
+        >> "$OUT/logs/openloop-$name.log" 2>&1
 }
 
 # The references first: constant velocity's open loop also builds the val clips' scoring cache

@@ -19,10 +19,8 @@ DRIVEE2E="${DRIVEE2E:-.venv/bin/drivee2e}"
 "$DRIVEE2E" train camera "$DATA" --split train --epochs "$EPOCHS" --out "$OUT/camera.pt"
 "$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model camera --checkpoint "$OUT/camera.pt" \
     --out "$OUT/camera_$SPLIT.parquet"
-for convention in stp3 uniad; do
-    "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/camera_$SPLIT.parquet" \
-        --convention "$convention" --json "$OUT/camera_${SPLIT}_$convention.json" > /dev/null
-done
+"$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/camera_$SPLIT.parquet" \
+    --convention stp3 uniad --json "$OUT/camera_${SPLIT}_{convention}.json" > /dev/null
 for agent in expert constant-velocity admlp camera; do
     CHECKPOINT=()
     case "$agent" in admlp|camera) CHECKPOINT=(--checkpoint "$OUT/$agent.pt");; esac

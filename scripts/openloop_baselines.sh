@@ -17,9 +17,7 @@ mkdir -p "$OUT"
 "$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model constant-velocity --out "$OUT/constant-velocity_$SPLIT.parquet"
 "$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model admlp --checkpoint "$OUT/admlp.pt" --out "$OUT/admlp_$SPLIT.parquet"
 for model in constant-velocity admlp; do
-    for convention in stp3 uniad; do
-        echo "== $model on $SPLIT ($convention)"
-        "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/${model}_$SPLIT.parquet" \
-            --convention "$convention" --json "$OUT/${model}_${SPLIT}_$convention.json"
-    done
+    echo "== $model on $SPLIT (stp3, uniad)"
+    "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/${model}_$SPLIT.parquet" \
+        --convention stp3 uniad --json "$OUT/${model}_${SPLIT}_{convention}.json"
 done

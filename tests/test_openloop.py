@@ -193,6 +193,18 @@ def test_cli_predict_and_score(loader_root: Path, tmp_path: Path, capsys) -> Non
     results = json.loads(out.read_text())["results"]
     assert results["all"]["samples"] == 36
     assert 0.0 < results["all"]["l2_3s"] < 1.0
+    # both conventions in one command: one file each, the same numbers as one at a time
+    both = ["openloop", str(loader_root), "--split", "test", "--predictions", str(predictions),
+            "--convention", "stp3", "uniad"]  # fmt: skip
+    assert main([*both, "--json", str(tmp_path / "cv_{convention}.json")]) == 0
+    assert json.loads((tmp_path / "cv_stp3.json").read_text())["results"] == results
+    uniad = json.loads((tmp_path / "cv_uniad.json").read_text())
+    assert uniad["convention"] == "uniad" and uniad["results"]["all"]["samples"] == 36
+    assert uniad["results"]["all"]["l2_1s"] > results["all"]["l2_1s"]  # the step, not the mean
+    capsys.readouterr()
+    assert main([*both, "--json", str(tmp_path / "one.json")]) != 0  # two tables, one name
+    assert "put {convention} in the path" in capsys.readouterr().err
+    assert not (tmp_path / "one.json").exists()
 
 
 def _write(path: Path, rows: dict) -> Path:

@@ -117,8 +117,20 @@ def add_openloop(commands) -> None:  # type: ignore[no-untyped-def]
     openloop.add_argument(
         "--predictions", type=Path, required=True, help="Parquet (docs/loaders.md)"
     )
-    openloop.add_argument("--convention", choices=CONVENTIONS, default="stp3")
-    openloop.add_argument("--json", type=Path, default=None, help="also save the table as JSON")
+    openloop.add_argument(
+        "--convention",
+        nargs="+",
+        choices=CONVENTIONS,
+        default=["stp3"],
+        help="one or more (scored in one process: the command's start paid once)",
+    )
+    openloop.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="also save each table as JSON; with several conventions the path holds "
+        "{convention} (for example plans_{convention}.json)",
+    )
     _cache_options(openloop)
 
 
@@ -300,10 +312,30 @@ def run_predict(args: argparse.Namespace) -> int:
 def run_openloop(args: argparse.Namespace) -> int:
     from drivee2e_data import openloop
 
+    conventions = list(dict.fromkeys(args.convention))
+    if args.json is not None and len(conventions) > 1 and "{convention}" not in str(args.json):
+        raise DriveE2EError(
+            f"--json {args.json}: {len(conventions)} conventions need one file each; put "
+            "{convention} in the path (for example plans_{convention}.json)"
+        )
     dataset = _labels_only(args) if args.no_cache else _cached(args, _scoring_spec())
     plans = openloop.read_predictions(args.predictions, dataset)
-    with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
-        results = openloop.score(dataset, plans, args.convention, bar.update)
+    for convention in conventions:
+        with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
+            results = openloop.score(dataset, plans, convention, bar.update)
+        _print_openloop(results, convention, args.split, len(plans), len(dataset))
+        if args.json is not None:
+            path = Path(str(args.json).replace("{convention}", convention))
+            document = {"convention": convention, "split": args.split, "results": results}
+            path.parent.mkdir(parents=True, exist_ok=True)
+            store.write_bytes_atomic(path, json.dumps(document, indent=2).encode())
+            print(f"wrote {path}")
+    return 0
+
+
+def _print_openloop(
+    results: dict[str, dict[str, float]], convention: str, split: str, planned: int, samples: int
+) -> None:
     keys = (
         "l2_1s",
         "l2_2s",
@@ -320,15 +352,9 @@ def run_openloop(args: argparse.Namespace) -> int:
         for name, values in results.items()
     ]
     print(
-        f"open-loop, {args.convention} convention, split {args.split}: {len(plans)} of {len(dataset)} samples planned"
+        f"open-loop, {convention} convention, split {split}: {planned} of {samples} samples planned"
     )
     _print_table(header, rows)
-    if args.json is not None:
-        document = {"convention": args.convention, "split": args.split, "results": results}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        store.write_bytes_atomic(args.json, json.dumps(document, indent=2).encode())
-        print(f"wrote {args.json}")
-    return 0
 
 
 def run_export(args: argparse.Namespace) -> int:
