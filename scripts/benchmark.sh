@@ -93,12 +93,13 @@ evaluate() {  # evaluate RUN AGENT MANIFEST WORKERS [CHECKPOINT [RECORD]]
         > "$OUT/logs/eval-$run.log" 2>&1
 }
 
-openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]
+openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]: plans, then scores them (a failed
+    # plan fails the stage: called under `||`, a function runs without `set -e`)
     local name="$1" model="$2" manifest="$3" checkpoint=()
     [ -n "${4:-}" ] && checkpoint=(--checkpoint "$4")
     OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" predict "$DATA" --split val \
         --split-name "$manifest" --model "$model" "${checkpoint[@]}" \
-        --out "$OUT/openloop/$name.parquet" > "$OUT/logs/openloop-$name.log" 2>&1
+        --out "$OUT/openloop/$name.parquet" > "$OUT/logs/openloop-$name.log" 2>&1 &&
     OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" openloop "$DATA" --split val \
         --split-name "$manifest" --predictions "$OUT/openloop/$name.parquet" \
         --convention stp3 uniad --json "$OUT/openloop/${name}_{convention}.json" \

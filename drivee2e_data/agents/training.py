@@ -220,7 +220,7 @@ def fit(
         # an epoch: reading it every batch would wait for the GPU every batch
         total, count = torch.zeros((), dtype=torch.float64, device=device), 0
         for rows in loader:
-            batch = {key: value.to(device, non_blocking=True) for key, value in rows.items()}
+            batch = to_device(rows, device)
             mask = batch["mask"].float()[..., None]
             with autocast:
                 predicted = predict(model, batch)

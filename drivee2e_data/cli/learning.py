@@ -231,13 +231,14 @@ def run_train(args: argparse.Namespace) -> int:
     import functools
 
     from drivee2e_data.agents import admlp, camera, tcp
+    from drivee2e_data.agents.device import model_device
     from drivee2e_data.agents.training import TrainOptions
 
     epochs = args.epochs or EPOCHS[args.model]
     batch_size = args.batch_size or BATCH_SIZES[args.model]
     learning_rate = args.learning_rate or LEARNING_RATES[args.model]
     options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
-    device = _device(args.device, args.model)
+    device = model_device(args.device, args.model)
     if args.model == "camera":
         trainer = functools.partial(camera.train, device=device)
     elif args.model == "tcp":
@@ -263,23 +264,10 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def _device(device: str, model: str) -> str:
-    """`--device` resolved: auto is the camera models on the GPU where torch sees one, AD-MLP's
-    small MLP (and constant velocity) on the CPU."""
-    import torch
-
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() and model in ("camera", "tcp") else "cpu"
-    if device != "cpu" and not device.startswith("cuda"):
-        raise DriveE2EError(f"--device {device!r}: expected auto, cpu, cuda or cuda:N")
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise DriveE2EError(f"--device {device}: torch sees no CUDA device here")
-    return device
-
-
 def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     from drivee2e_data.agents import admlp, camera, tcp
     from drivee2e_data.agents.constant_velocity import ConstantVelocity
+    from drivee2e_data.agents.device import model_device
 
     if args.model == "constant-velocity":
         return ConstantVelocity()
@@ -289,7 +277,7 @@ def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         )
     if args.model == "admlp":
         return admlp.load(args.checkpoint)
-    device = _device(args.device, args.model)
+    device = model_device(args.device, args.model)
     if args.model == "tcp":
         return tcp.TCPPlanner(args.checkpoint, device)
     return camera.CameraPlanner(args.checkpoint, device)
