@@ -12,6 +12,7 @@ from drivee2e_data.sim.actors import BLUEPRINTS, convex_parts
 from drivee2e_data.sim.animation import animation_at, track_motion
 from drivee2e_data.sim.conditions import ShaderLook
 from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
+from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, Light, agent_model, palette, pose, vehicles
 from drivee2e_data.sim.models.mesh import HIP_SWING_RAD, face_normals
 from drivee2e_data.sim.twin_plan import TwinMesh, box_mesh
@@ -117,6 +118,37 @@ def test_wheels_turn_by_distance_over_circumference():
     step = np.angle(np.exp(1j * (angle_after - angle_before)))[far]
     assert np.allclose(step, 0.5, atol=1e-4)  # forward roll: the top moves ahead (+x)
     assert np.allclose(after[:, 1], before[:, 1], atol=1e-5)  # about the axle (y)
+
+
+@pytest.mark.parametrize(
+    ("agent_class", "name", "size"),
+    [(AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)), (AgentClass.BUS, "bus", (11.0, 2.5, 3.2)),
+     (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
+     (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7))],
+)  # fmt: skip
+def test_a_placed_model_is_its_posed_mesh_moved_to_the_body(agent_class, name, size):
+    """The renderer's one-pass placing (`PlacedModel`) gives the triangles of `pose` rotated
+    by the body's quaternion and moved to its position: the same triangles (in joint order),
+    within float32 rounding, with their colours, body id, material and lights."""
+    model = agent_model(agent_class, name, size, "placed")
+    placer = PlacedModel(model, body=7)
+    animation = Animation(wheel_angle_rad=2.1, steer_rad=0.15, walk_phase_rad=1.3,
+                          walk_amount=0.8, brake=True, headlights=True)  # fmt: skip
+    yaw, position = 0.7, np.array([12.0, -3.0, 0.4])
+    quaternion = (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))
+    rotation = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    positions, normals, emission = pose(model, animation)
+    out = placer.vertices(animation, tuple(position), quaternion)
+    order = placer.order
+    assert sorted(order.tolist()) == list(range(len(model.positions)))
+    assert np.allclose(out[:, 0:3], positions[order] @ rotation.T + position, atol=2e-5)
+    assert np.allclose(out[:, 3:6], normals[order] @ rotation.T, atol=2e-6)
+    assert np.array_equal(out[:, 6:9], model.colours[order])
+    assert np.all(out[:, 9] == 8)
+    assert np.array_equal(out[:, 10], emission[order])
+    assert np.array_equal(out[:, 11], model.materials[order].astype(np.float32))
+    # each triangle stays whole: its three vertices are consecutive and from one joint
+    assert np.all(np.ptp(np.asarray(model.joints)[order].reshape(-1, 3), axis=1) == 0)
 
 
 def test_brake_lights_follow_deceleration():

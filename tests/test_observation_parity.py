@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.evaluate.observation import PARITY_PSNR_DB, SensorObserver
+from drivee2e_data.evaluate.observation import PARITY_PSNR_DB, SensorObserver, planar
 from drivee2e_data.evaluate.traffic import Traffic
 from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.logs import topics
@@ -92,3 +93,20 @@ def test_the_observer_sees_the_logged_frames(weathered_root: Path, clip: str) ->
     assert min(exact_psnr) > 38.0
     assert min(cheap_psnr) > PARITY_PSNR_DB
     assert np.median(cheap_psnr) > np.median(at_input_psnr) + 3.0
+
+
+@pytest.mark.parametrize("size", [(128, 72), (160, 90), (320, 180)])
+def test_planar_gives_the_same_bytes_for_a_bgra_read_as_for_its_rgb_copy(size) -> None:
+    """The observer's resize straight from the renderer's BGRA read (the fast path) equals
+    resizing the same pixels as a contiguous RGB image, to the byte, at a reduction, an
+    uneven one, and none."""
+    rng = np.random.default_rng(3)
+    bgra = rng.integers(0, 256, (180, 320, 4), dtype=np.uint8)
+    view = bgra[:, :, 2::-1]  # as GLRenderer hands out its colour
+    copy = np.ascontiguousarray(view)
+    fast, reference = planar(view, size), planar(copy, size)
+    assert fast.shape == (3, size[1], size[0]) and fast.flags.c_contiguous
+    assert np.array_equal(fast, reference)
+    assert np.array_equal(
+        reference[0], cv2.resize(copy, size, interpolation=cv2.INTER_AREA)[..., 0]
+    )

@@ -74,6 +74,10 @@ class EpisodeResult:
     sim_seconds: float
     wall_seconds: float
     failure: str = ""
+    # where the wall time went: drawing and preparing the agent's inputs, and the agent's act
+    # (its network, or the wait on its policy server); the rest is the simulation and the rules
+    observe_seconds: float = 0.0
+    agent_seconds: float = 0.0
     trace: list[StepRecord] = field(default_factory=list)
     # the first step driven outside the route's lanes, and off the road (-1: never)
     outside_first_step: int = -1
@@ -192,8 +196,12 @@ class Episode:
         outside_first = off_road_first = -1
         trace: list[StepRecord] = []
         step = 0
+        observe_s = agent_s = 0.0
         while not failure:
+            began = time.perf_counter()
             observation = self._observe(step, state, history, poses, progress.progress_m)
+            observed = time.perf_counter()
+            observe_s += observed - began
             try:
                 action = parse_action(self.agent.act(observation))
             except AgentFailure as error:
@@ -202,6 +210,8 @@ class Episode:
             except Exception as error:
                 failure = f"act raised {type(error).__name__}: {error}"
                 break
+            finally:
+                agent_s += time.perf_counter() - observed
             planned = None
             if isinstance(action, Waypoints):
                 planned = action.xy_m
@@ -299,6 +309,8 @@ class Episode:
             trace=trace,
             outside_first_step=outside_first,
             off_road_first_step=off_road_first,
+            observe_seconds=observe_s,
+            agent_seconds=agent_s,
         )
 
     def _ego_lw(self) -> tuple[float, float]:

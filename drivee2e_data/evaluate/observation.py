@@ -39,6 +39,7 @@ from drivee2e_data.sensors.camera import (
 from drivee2e_data.sensors.ego_state import se3
 from drivee2e_data.sensors.rig import IMAGE_HEIGHT, IMAGE_WIDTH
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
+from drivee2e_data.sim.gl_readback import bgra_under
 from drivee2e_data.sim.vehicle import VehicleState
 from drivee2e_data.sim.world import World
 
@@ -123,7 +124,17 @@ class SensorObserver:
 
 def planar(rgb: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
     """An RGB image `(h, w, 3)` area-resized to `size` (width, height) as planar RGB
-    `(3, H, W)`, as the Dataset's decoder lays its images out."""
-    if rgb.shape[1::-1] != tuple(size):
-        rgb = cv2.resize(np.ascontiguousarray(rgb), tuple(size), interpolation=cv2.INTER_AREA)
-    return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
+    `(3, H, W)`, as the Dataset's decoder lays its images out. A view of the GL renderer's
+    BGRA read is resized as it lies (channels are resized one by one, so the bytes are the
+    same) and split into planes by OpenCV: numpy's copy of such a view, a pixel at a time, had
+    been half of this function's time (2.5 against 1.3 ms a 533x300 view, one thread)."""
+    bgra = bgra_under(rgb)
+    if bgra is None:
+        rgb = np.ascontiguousarray(rgb)
+        if rgb.shape[1::-1] != tuple(size):
+            rgb = cv2.resize(rgb, tuple(size), interpolation=cv2.INTER_AREA)
+        return np.ascontiguousarray(np.moveaxis(rgb, -1, 0))
+    if bgra.shape[1::-1] != tuple(size):
+        bgra = cv2.resize(bgra, tuple(size), interpolation=cv2.INTER_AREA)
+    blue, green, red, _ = cv2.split(bgra)
+    return np.stack([red, green, blue])

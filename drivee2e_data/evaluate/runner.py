@@ -199,8 +199,11 @@ def evaluate_clip(
             raise DriveE2EError(
                 f"clip {scenario_id} has no {options.variant} variant; curate again"
             )
+        began = time.perf_counter()
         agent = _agent_for(options, agent_factory)
+        agent_built = time.perf_counter()
         world = _world_for(root, scenario, options.renderer) if tuple(agent.sensors) else None
+        world_built = time.perf_counter()
         _seed(options.seed, scenario_id)
         episode = Episode(
             scenario,
@@ -225,6 +228,11 @@ def evaluate_clip(
             write_video(out / RECORDS_FOLDER / f"{scenario_id}.mp4", world, scenario, result,
                         episode.route_xy, episode.motion.z_m, episode.bicycle)  # fmt: skip
         row = result_row(scenario, result, options, len(removed or ()))
+        # a scene's set-up: reading it, the agent (made once per process), the world (a
+        # process's first one makes its GL context and compiles its shaders)
+        row["read_seconds"] = began - start
+        row["agent_build_seconds"] = agent_built - began
+        row["world_seconds"] = world_built - agent_built
     except (DriveE2EError, ValueError, KeyError, OSError) as error:  # this clip only
         row = {"scenario_id": scenario_id, "status": "error", "failure": str(error)}
     row["wall_seconds"] = time.perf_counter() - start
@@ -261,6 +269,8 @@ def result_row(
         "steps": result.steps,
         "sim_seconds": result.sim_seconds,
         "episode_seconds": result.wall_seconds,
+        "observe_seconds": result.observe_seconds,
+        "agent_seconds": result.agent_seconds,
         "removed_agents": removed,
         "failure": result.failure,
         "events": json.dumps(

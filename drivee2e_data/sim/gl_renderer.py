@@ -48,12 +48,12 @@ from drivee2e_data.sim.gl_vertices import (
     POSITION_ONLY,
     VERTEX_FORMAT,
     VERTEX_INPUTS,
+    PlacedModel,
     _Body,
-    model_vertices,
     static_anchors,
     static_vertices,
 )
-from drivee2e_data.sim.models import Animation, ModelMesh, pose
+from drivee2e_data.sim.models import Animation, ModelMesh
 from drivee2e_data.sim.scenery import WearRaster
 from drivee2e_data.sim.twin_plan import TwinMesh
 
@@ -462,6 +462,7 @@ class GLRenderer:
         self.dynamic_batches = DrawBatches.empty()
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
+        self.placers: dict[int, PlacedModel] = {}  # each model body's posing, made once
         # each model's vertices in the world at its last pose (position, orientation and
         # animation): a frame syncs twice (the cameras, then the top view with the ego shown),
         # only the ego moves between the two, and stationary actors keep their vertices
@@ -625,12 +626,14 @@ class GLRenderer:
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
         self.models = dict(models)
+        self.placers = {}
         self.placed = {}
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
         (pybullet reuses the ids of removed bodies)."""
         self.bodies = {}
+        self.placers = {}
         self.placed = {}
         self.synced = None
         self.shadowed = None
@@ -691,8 +694,10 @@ class GLRenderer:
         placed = self.placed.get(body)
         if placed is not None and placed[0] == (position, orientation, animation):
             return placed[1]
-        posed = pose(self.models[body], animation)
-        vertices = model_vertices(self.models[body], posed, position, orientation, body)
+        placer = self.placers.get(body)
+        if placer is None or placer.model is not self.models[body]:
+            placer = self.placers[body] = PlacedModel(self.models[body], body)
+        vertices = placer.vertices(animation, position, orientation)
         self.placed[body] = ((position, orientation, animation), vertices)
         return vertices
 

@@ -10,6 +10,8 @@ swing) and returns the vertices of one instant; the renderer only uploads them.
 from __future__ import annotations
 
 import enum
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -346,51 +348,74 @@ STEER_LIMIT_RAD = np.radians(12.0)  # wheels are drawn turned at most this far (
 # at most 2 cm out of the box; real arches hide more)
 
 
-def joint_rotations(mesh: ModelMesh, animation: Animation) -> NDArray[np.float64]:
-    """`(J, 3, 3)` each joint's rotation about its pivot, in its parent's frame."""
-    rotations = np.repeat(np.eye(3)[None], len(mesh.joint_table), axis=0)
+def joint_angles(mesh: ModelMesh, animation: Animation) -> tuple[list[float], list[float]]:
+    """Each joint's pitch (about its y axis) and yaw (about its z axis, steering wheels only),
+    radians: the joint's rotation is yaw after pitch (`rotation_z(yaw) @ rotation_y(pitch)`).
+    Plain floats: a model has a handful of joints and a frame poses dozens of models."""
     phase, amount = animation.walk_phase_rad, animation.walk_amount
+    pitch, yaw = [0.0] * len(mesh.joint_table), [0.0] * len(mesh.joint_table)
     for index, joint in enumerate(mesh.joint_table):
         if joint.kind == "wheel":
-            rotations[index] = rotation_y(np.float64(animation.wheel_angle_rad))
+            pitch[index] = animation.wheel_angle_rad
         elif joint.kind == "steer_wheel":
-            steer = np.clip(animation.steer_rad, -STEER_LIMIT_RAD, STEER_LIMIT_RAD)
-            rotations[index] = rotation_z(np.float64(steer)) @ rotation_y(
-                np.float64(animation.wheel_angle_rad)
-            )
+            pitch[index] = animation.wheel_angle_rad
+            yaw[index] = min(max(animation.steer_rad, -STEER_LIMIT_RAD), STEER_LIMIT_RAD)
         elif joint.kind in ("hip", "knee", "ankle"):
             hip, knee = _leg_angles(joint.side, phase, amount)
-            angle = {"hip": hip, "knee": knee, "ankle": -(hip + knee)}[joint.kind]
-            rotations[index] = rotation_y(np.float64(angle))
+            pitch[index] = {"hip": hip, "knee": knee, "ankle": -(hip + knee)}[joint.kind]
         elif joint.kind == "shoulder":
-            rotations[index] = rotation_y(np.float64(-joint.side * amount * ARM_SWING_RAD
-                                                     * np.sin(phase)))  # fmt: skip
+            pitch[index] = -joint.side * amount * ARM_SWING_RAD * math.sin(phase)
         elif joint.kind == "elbow":
-            rotations[index] = rotation_y(np.float64(-ELBOW_BEND_RAD * (0.5 + 0.5 * amount)))
+            pitch[index] = -ELBOW_BEND_RAD * (0.5 + 0.5 * amount)
         elif joint.kind == "pedal":
-            angle = joint.side * PEDAL_SWING_RAD * np.sin(animation.wheel_angle_rad)
-            rotations[index] = rotation_y(np.float64(angle))
-    return rotations
+            pitch[index] = joint.side * PEDAL_SWING_RAD * math.sin(animation.wheel_angle_rad)
+    return pitch, yaw
+
+
+def joint_rotations(mesh: ModelMesh, animation: Animation) -> NDArray[np.float64]:
+    """`(J, 3, 3)` each joint's rotation about its pivot, in its parent's frame."""
+    pitch, yaw = joint_angles(mesh, animation)
+    return rotation_z(np.asarray(yaw)) @ rotation_y(np.asarray(pitch))
 
 
 def _leg_angles(side: int, phase: float, amount: float) -> tuple[float, float]:
     """A leg's hip swing and knee bend (radians) at walk `phase`: the knee bends while its leg
     swings forward (the half cycle before its hip reaches the front)."""
-    hip = side * amount * HIP_SWING_RAD * np.sin(phase)
-    knee = amount * KNEE_BEND_RAD * max(0.0, -side * np.cos(phase))
+    hip = side * amount * HIP_SWING_RAD * math.sin(phase)
+    knee = amount * KNEE_BEND_RAD * max(0.0, -side * math.cos(phase))
     return float(hip), float(knee)
 
 
+@functools.lru_cache(maxsize=256)
+def _chain(
+    joint_table: tuple[Joint, ...],
+) -> tuple[NDArray[np.float64], NDArray[np.intp], list[NDArray[np.intp]]]:
+    """The joints' pivots `(J, 3)`, parents `(J,)` and indices level by level below the root (a
+    level's parents all lie in the levels before it), so a whole level is composed at once."""
+    depth = [0] * len(joint_table)
+    for index, joint in enumerate(joint_table[1:], start=1):
+        depth[index] = depth[joint.parent] + 1
+    levels = [np.flatnonzero(np.asarray(depth) == level) for level in range(1, max(depth) + 1)]
+    pivots = np.array([joint.pivot_m for joint in joint_table], np.float64)
+    return pivots, np.array([joint.parent for joint in joint_table]), levels
+
+
 def joint_transforms(mesh: ModelMesh, animation: Animation) -> NDArray[np.float64]:
-    """`(J, 3, 4)` each joint's transform in the model frame (parents before children)."""
+    """`(J, 3, 4)` each joint's transform in the model frame (parents before children): a
+    joint turns by its rotation about its pivot, then moves with its parent."""
     rotations = joint_rotations(mesh, animation)
-    transforms = np.zeros((len(mesh.joint_table), 3, 4))
-    transforms[0, :, :3] = np.eye(3)
-    for index, joint in enumerate(mesh.joint_table[1:], start=1):
-        pivot = np.asarray(joint.pivot_m)
-        rotation, parent = rotations[index], transforms[joint.parent]
-        transforms[index, :, :3] = parent[:, :3] @ rotation
-        transforms[index, :, 3] = parent[:, :3] @ (pivot - rotation @ pivot) + parent[:, 3]
+    pivots, parents, levels = _chain(mesh.joint_table)
+    transforms = np.empty((len(mesh.joint_table), 3, 4))
+    # a joint's own transform [R | p - R p], then its parent's applied: parent @ own
+    transforms[:, :, :3] = rotations
+    transforms[:, :, 3] = pivots - (rotations @ pivots[:, :, None])[:, :, 0]
+    transforms[0] = np.eye(3, 4)
+    for level in levels:
+        parent = transforms[parents[level]]
+        own = transforms[level]
+        translation = (parent[:, :, :3] @ own[:, :, 3:])[:, :, 0] + parent[:, :, 3]
+        transforms[level, :, :3] = parent[:, :, :3] @ own[:, :, :3]
+        transforms[level, :, 3] = translation
     return transforms
 
 

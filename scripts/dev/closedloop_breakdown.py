@@ -1,0 +1,74 @@
+"""Where closed-loop time goes, per run folder: a scene's wall time split into the episode's
+drawing and input preparation (`observe_seconds`), the agent's act (its network, or the wait on
+its policy server: `agent_seconds`), the rest of the episode (simulation, traffic, rules) and
+what lies outside the episode (the set-up: reading the scene, building the agent, the world;
+a worker's first scene pays for its agent and GL context), against the
+simulated time (the reference: real time).
+
+    python scripts/dev/closedloop_breakdown.py RUN [RUN ...]
+
+RUN is an `evaluate` run folder (its `episodes.parquet`). Runs written before the episodes
+recorded their observe and agent seconds show those as n/a.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+
+def breakdown(run: Path) -> dict[str, float]:
+    """Means over a run's scored episodes, seconds a scene; 'steps' a scene too."""
+    table = pq.read_table(run / "episodes.parquet").to_pylist()
+    rows = [row for row in table if row.get("status") != "error"]
+    if not rows:
+        raise SystemExit(f"{run}/episodes.parquet: no scored episode")
+
+    def mean(key: str) -> float:
+        values = [row.get(key) for row in rows]
+        if any(value is None for value in values):
+            return float("nan")
+        return sum(values) / len(values)
+
+    keys = ("wall_seconds", "episode_seconds", "observe_seconds", "agent_seconds", "sim_seconds",
+            "steps", "read_seconds", "agent_build_seconds", "world_seconds")  # fmt: skip
+    result = {key: mean(key) for key in keys}
+    result["rest_seconds"] = (
+        result["episode_seconds"] - result["observe_seconds"] - result["agent_seconds"]
+    )
+    result["setup_seconds"] = result["wall_seconds"] - result["episode_seconds"]
+    result["episodes"] = len(rows)
+    slowest = max(rows, key=lambda row: row["wall_seconds"] - row["episode_seconds"])
+    result["slowest"] = tuple(
+        slowest.get(key, float("nan")) or 0.0
+        for key in ("read_seconds", "agent_build_seconds", "world_seconds")
+    )
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    args = parser.parse_args()
+    print("| run | scenes | steps | wall s | set-up (read, agent, world; the slowest's) "
+          "| observe | agent | rest | simulated s | wall / simulated "
+          "| ms a step (observe, agent, rest) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for run in args.runs:
+        b = breakdown(run)
+        per_step = [1000 * b[k] / max(b["steps"], 1) for k in
+                    ("observe_seconds", "agent_seconds", "rest_seconds")]  # fmt: skip
+        slowest = ", ".join(f"{value:.2f}" for value in b["slowest"])
+        print(f"| {run.name} | {b['episodes']} | {b['steps']:.0f} | {b['wall_seconds']:.2f} "
+              f"| {b['setup_seconds']:.2f} ({b['read_seconds']:.2f}, "
+              f"{b['agent_build_seconds']:.2f}, {b['world_seconds']:.2f}; {slowest}) "
+              f"| {b['observe_seconds']:.2f} | {b['agent_seconds']:.2f} "
+              f"| {b['rest_seconds']:.2f} | {b['sim_seconds']:.1f} "
+              f"| {b['wall_seconds'] / max(b['sim_seconds'], 1e-9):.2f} "
+              f"| {per_step[0]:.1f}, {per_step[1]:.1f}, {per_step[2]:.1f} |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
