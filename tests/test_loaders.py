@@ -263,6 +263,22 @@ def test_loaders_do_not_import_the_simulator() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+def test_the_agents_and_the_cache_do_not_import_the_data_module() -> None:
+    """A closed-loop worker builds its agent (which imports the feature cache and the Dataset)
+    without the Lightning data module: Lightning, where installed, imports torchmetrics and
+    torchvision (8.7 s a worker on an H100-class host). The data module still comes on use."""
+    code = (
+        "import sys, drivee2e_data.agents.tcp, drivee2e_data.agents.camera, drivee2e_data.loaders;"
+        "bad = [m for m in sys.modules if m.startswith(('lightning', 'pytorch_lightning',"
+        " 'torchmetrics', 'drivee2e_data.loaders.datamodule'))];"
+        "from drivee2e_data.loaders import DriveE2EDataModule;"
+        "print(bad, DriveE2EDataModule.__name__); sys.exit(1 if bad else 0)"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "DriveE2EDataModule" in result.stdout
+
+
 def _root_with(loader_root: Path, tmp_path: Path) -> Path:
     root = tmp_path / "data"
     shutil.copytree(loader_root, root)

@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
 # Closed-loop speed on a fresh GPU host (issue 60's measurement), in one device call: its
-# environment (scripts/gpu_env.sh), CLIPS synthetic clips (seed 0) collected at 2 Hz, TCP and
-# the camera policy trained briefly on them (a checkpoint to drive: the network's cost does not
-# depend on how well it is trained), then each agent evaluated on every clip through the CLI
-# with each worker count in WORKERS, and the breakdown of a scene's time per run
-# (scripts/dev/closedloop_breakdown.py) with the GPU's utilisation over each run.
-#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] bash scripts/dev/device_closedloop.sh
+# environment (scripts/gpu_env.sh), CLIPS synthetic clips (seed 0), an agent checkpoint (TCP and
+# the camera policy trained briefly on the clips collected at 2 Hz, or TCP from a carried
+# half-precision copy: HALF_TCP=out/tcp_half.pt, its optimiser state remade to a real
+# checkpoint's size; the network's cost does not depend on how well it is trained), then each
+# agent evaluated on every clip through the CLI with each worker count in WORKERS, by this
+# version and, with BASE_TAR (`git archive REV -o out/base.tar`, carried), by that one first,
+# and the breakdown of a scene's time per run (scripts/dev/closedloop_breakdown.py) with the
+# GPU's utilisation over each run.
+#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [BASE_TAR=out/base.tar]
+#   [HALF_TCP=out/tcp_half.pt] bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
 CLIPS="${CLIPS:-40}"
@@ -20,15 +24,41 @@ fi
 # shellcheck disable=SC1091
 source /tmp/drivee2e_env
 export PATH="/tmp/proj/bin:$PATH"
+versions=(work)
+if [ -n "${BASE_TAR:-}" ]; then
+    rm -rf /tmp/base_src && mkdir -p /tmp/base_src && tar -xf "$BASE_TAR" -C /tmp/base_src
+    PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation \
+        --target /tmp/proj_base /tmp/base_src > /tmp/base_install.log 2>&1
+    python3 -m compileall -q /tmp/proj_base > /dev/null || true
+    versions=(base work)
+fi
 echo "environment: $(( $(date +%s) - start )) s; $(nproc) cores; $(nvidia-smi -L | wc -l) GPUs"
 cd /tmp
 stage() { local t; t=$(date +%s); "$@" > /tmp/stage.log 2>&1 || { tail -20 /tmp/stage.log; exit 1; }
-          echo "$1 $2: $(( $(date +%s) - t )) s"; }
+          echo "$* : $(( $(date +%s) - t )) s" | cut -c1-100; }
 if [ ! -f "$DATA/splits/default.csv" ]; then
     stage drivee2e synth --out "$DATA" --clips "$CLIPS" --seed 0 --workers "$(nproc)"
     stage drivee2e curate "$DATA"
-    stage drivee2e collect "$DATA" --workers auto --sensor-hz 2
+    [ -n "${HALF_TCP:-}" ] || stage drivee2e collect "$DATA" --workers auto --sensor-hz 2
     stage drivee2e split "$DATA" --seed 0
+fi
+if [ -n "${HALF_TCP:-}" ] && [ ! -f "$DATA/tcp.pt" ]; then
+    python3 - "$repo/$HALF_TCP" "$DATA/tcp.pt" <<'PY'
+import sys
+
+import torch
+
+saved = torch.load(sys.argv[1], map_location="cpu", weights_only=True)
+model = {k: v.float() if v.is_floating_point() else v for k, v in saved["model"].items()}
+saved["model"] = model
+floats = [v for v in model.values() if v.is_floating_point()]
+saved["optimiser"] = {  # Adam's two moments per parameter, as a trained checkpoint holds
+    "state": {i: {"exp_avg": v.clone(), "exp_avg_sq": v.clone(), "step": torch.tensor(1.0)}
+              for i, v in enumerate(floats)},
+    "param_groups": [{"lr": 3e-4, "params": list(range(len(floats)))}],
+}
+torch.save(saved, sys.argv[2])
+PY
 fi
 for agent in $AGENTS; do
     [ -f "$DATA/$agent.pt" ] || stage drivee2e train "$agent" "$DATA" --split all \
@@ -44,17 +74,22 @@ fi
 runs=()
 for agent in $AGENTS; do
     for workers in $WORKERS; do
-        run="$DATA/runs/$agent-w$workers${TAG:-}"
-        rm -rf "$run"
-        nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader,nounits -l 1 \
-            > "/tmp/util-$agent-$workers" 2>/dev/null &
-        logger=$!
-        stage drivee2e evaluate "$DATA" --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" \
-            --workers "$workers" --out "$run"
-        kill "$logger"
-        echo "  GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END {printf "%.0f", s/n}' \
-            "/tmp/util-$agent-$workers")"
-        runs+=("$run")
+        for version in "${versions[@]}"; do
+            run="$DATA/runs/$agent-w$workers-$version"
+            rm -rf "$run"
+            nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader,nounits -l 1 \
+                > "/tmp/util-$agent-$workers" 2>/dev/null &
+            logger=$!
+            path=/tmp/proj
+            [ "$version" = base ] && path=/tmp/proj_base
+            stage env PYTHONPATH="$path:/tmp/site" python3 -m drivee2e_data.cli evaluate "$DATA" \
+                --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" --workers "$workers" \
+                --out "$run"
+            kill "$logger"
+            echo "  $version: GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
+                {printf "%.0f", s/n}' "/tmp/util-$agent-$workers")"
+            runs+=("$run")
+        done
     done
 done
 python3 "$repo/scripts/dev/closedloop_breakdown.py" "${runs[@]}"
