@@ -5,10 +5,11 @@
 # half-precision copy: HALF_TCP=out/tcp_half.pt, its optimiser state remade to a real
 # checkpoint's size; the network's cost does not depend on how well it is trained), then each
 # agent evaluated on every clip through the CLI with each worker count in WORKERS, by this
-# version and, with BASE_TAR (`git archive REV -o out/base.tar`, carried), by that one first,
+# version and, with BASE_TAR (carried: `git archive REV $(git diff --name-only REV -- drivee2e_data
+# loaders collect) -o out/base.tar`, the files that differ), by that one first,
 # and the breakdown of a scene's time per run (scripts/dev/closedloop_breakdown.py) with the
 # GPU's utilisation over each run.
-#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [BASE_TAR=out/base.tar]
+#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [BASE_TAR=out/base_overlay.tar]
 #   [HALF_TCP=out/tcp_half.pt] bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
@@ -26,7 +27,9 @@ source /tmp/drivee2e_env
 export PATH="/tmp/proj/bin:$PATH"
 versions=(work)
 if [ -n "${BASE_TAR:-}" ]; then
-    rm -rf /tmp/base_src && mkdir -p /tmp/base_src && tar -xf "$BASE_TAR" -C /tmp/base_src
+    # the working tree with the base's versions of the files that differ put back over it
+    rm -rf /tmp/base_src && mkdir -p /tmp/base_src && cp -r "$repo/." /tmp/base_src/
+    tar -xf "$BASE_TAR" -C /tmp/base_src
     PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation \
         --target /tmp/proj_base /tmp/base_src > /tmp/base_install.log 2>&1
     python3 -m compileall -q /tmp/proj_base > /dev/null || true
