@@ -22,8 +22,10 @@ __all__ = ["LOOK_VERSION", "Animation", "Light", "Material", "ModelMesh", "agent
 # of their own in whole bays centred on each wall, walls without the window grid's tone, crowns
 # drawn coarser beyond 40 m where the CPU draws (`twin.CROWN_SPHERES`); 6: the sun's shadow map
 # centred on the ego's position rounded to 8 m (`gl_renderer.SHADOW_FOCUS_STEP_M`: shadow
-# edges sampled at another phase, the map's faded border elsewhere), no grass under the road.
-LOOK_VERSION = 6
+# edges sampled at another phase, the map's faded border elsewhere), no grass under the road;
+# 7: asphalt, marking and grass grain as smooth value noise instead of a hash per cell (no
+# texel blocks near the camera), faded where its cells shrink below a pixel.
+LOOK_VERSION = 7
 STATURE_RANGE_M = (1.52, 1.70)  # pedestrians' heights, inside the 1.72 m blueprint box
 BUILD_RANGE = (0.85, 1.15)
 

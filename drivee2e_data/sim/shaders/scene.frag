@@ -17,6 +17,7 @@
 #define LAMP_WALL_SHARE 0.35  // a wall gets this share of what level ground under it gets
 #define BEAM_WALL_SHARE 1.0  // and of a headlight's (a beam meets it more squarely)
 #define BEAM_HEIGHT_M 4.0  // headlights light surfaces below this
+#define ASPHALT_GRAIN_PER_M 33.0  // the aggregate's noise cells a metre (3 cm; real chippings 0.6-2 cm)
 #define MATTE 0
 #define PAINT 1
 #define GLASS 2
@@ -76,23 +77,37 @@ float sunlit() {
 #endif
 }
 
+// how much of a procedural pattern a pixel can show when `cells_per_pixel` of its cells fall
+// in one pixel: all of it up to half a cell, none from one cell on (finer detail would alias)
+float resolved(float cells_per_pixel) {
+    return clamp(2.0 - 2.0 * cells_per_pixel, 0.0, 1.0);
+}
+
 // the albedo of the procedural materials, and how shiny they are (x: specular share,
 // y: exponent)
 vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
     vec2 p = world_position.xy;
     float fine = clamp(1.0 - eye_depth / 35.0, 0.0, 1.0);  // grain fades before it aliases
+    // the ground a pixel spans here, as the side of a square of its area (seen at a grazing
+    // angle a pixel is long in depth and narrow across: its longer side had blurred the grain
+    // out by 10 m); taken before any branch (derivatives need every pixel of a 2x2 block)
+    float metres_per_pixel = sqrt(length(dFdx(p)) * length(dFdy(p)));
     shine = vec2(0.0, 1.0);
     glow = 0.0;
 #ifdef HAS_ASPHALT
     if (material == ASPHALT) {
-        float grain = hash(floor(p * 9.0)) - 0.5;  // aggregate: a speckle, one hash a cell
+        // aggregate: smooth value noise in 3 cm cells (a hash per 11 cm cell had drawn flat
+        // squares ten pixels wide 5-15 m ahead), faded out where its cells shrink towards a
+        // pixel (as a mipmap would): the same grain at any image size
+        float grain = (noise(p * ASPHALT_GRAIN_PER_M) - 0.5)
+            * resolved(metres_per_pixel * ASPHALT_GRAIN_PER_M);
         vec2 ground = texture(wear_map, (p - wear_origin) / wear_extent).rg;  // wear, mottle
-        return base * (1.0 + 0.22 * grain * fine + 0.35 * (ground.g - 0.5)) * (1.0 - 0.28 * ground.r);
+        return base * (1.0 + 0.4 * grain + 0.35 * (ground.g - 0.5)) * (1.0 - 0.28 * ground.r);
     }
 #endif
 #ifdef HAS_MARKING
     if (material == MARKING) {
-        return base * (0.9 + 0.16 * hash(floor(p * 4.0)) * fine);
+        return base * (0.9 + 0.16 * noise(p * 4.0) * resolved(metres_per_pixel * 4.0));
     }
 #endif
 #ifdef HAS_PAVEMENT
@@ -106,7 +121,8 @@ vec3 albedo(vec3 base, vec3 n, out vec2 shine, out float glow) {
 #ifdef HAS_GRASS
     if (material == GRASS) {
         float mottle = texture(wear_map, (p - wear_origin) / wear_extent).g;
-        return base * (0.72 + 0.5 * mottle) * (1.0 + 0.2 * (hash(floor(p * 6.0)) - 0.5) * fine);
+        float tufts = (noise(p * 9.0) - 0.5) * resolved(metres_per_pixel * 9.0);
+        return base * (0.72 + 0.5 * mottle) * (1.0 + 0.3 * tufts);
     }
 #endif
 #ifdef HAS_FOLIAGE
