@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sim.models import Material, ModelMesh
+from drivee2e_data.sim.models.mesh import emission, joint_transforms
 from drivee2e_data.sim.twin_plan import TwinMesh, box_mesh, prism_mesh, sphere_mesh
 
 CYLINDER_SIDES = 16
@@ -223,14 +224,9 @@ class PlacedModel:
     ) -> NDArray[np.float32]:
         """`(N, FLOATS_PER_VERTEX)` the model posed by `animation` (`models.Animation`) at a
         body's pose (pybullet's position and quaternion), in world coordinates."""
-        from drivee2e_data.sim.models.mesh import emission, joint_transforms
-
         model = self.model
         rotation = _rotation(orientation)
-        if len(model.joint_table) == 1:
-            transforms = np.eye(3, 4)[None]
-        else:
-            transforms = joint_transforms(model, animation)
+        transforms = joint_transforms(model, animation)  # a rigid model's: the identity
         linear = rotation @ transforms[:, :, :3]  # (J, 3, 3) model to world
         offset = transforms[:, :, 3] @ rotation.T + np.asarray(position, np.float64)  # (J, 3)
         # per joint the (7, 6) matrix taking [p, 1, n] to [R p + t, R n]
