@@ -265,10 +265,14 @@ def test_loaders_do_not_import_the_simulator() -> None:
 
 def test_the_agents_and_the_cache_do_not_import_the_data_module() -> None:
     """A closed-loop worker builds its agent (which imports the feature cache and the Dataset)
-    without the Lightning data module: Lightning, where installed, imports torchmetrics and
-    torchvision (8.7 s a worker on an H100-class host). The data module still comes on use."""
+    without the Lightning data module or torchmetrics: Lightning, where installed, imports
+    torchmetrics and torchvision (8.7 s a worker on an H100-class host; the constant-velocity
+    agent's import of the open-loop metric cost each worker 10 s on a 4-GPU host). The data
+    module still comes on use."""
     code = (
         "import sys, drivee2e_data.agents.tcp, drivee2e_data.agents.camera, drivee2e_data.loaders;"
+        "import drivee2e_data.agents.admlp, drivee2e_data.agents.constant_velocity;"
+        "import drivee2e_data.agents.expert;"
         "bad = [m for m in sys.modules if m.startswith(('lightning', 'pytorch_lightning',"
         " 'torchmetrics', 'drivee2e_data.loaders.datamodule'))];"
         "from drivee2e_data.loaders import DriveE2EDataModule;"

@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from drivee2e_data.evaluate.agent import Observation, Waypoints
-from drivee2e_data.metrics.openloop import STEP_S
+from drivee2e_data.metrics import STEP_S
 
 
 class ConstantVelocity:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 from tqdm import tqdm
@@ -250,16 +251,26 @@ def run_train(args: argparse.Namespace) -> int:
         tqdm(total=len(dataset), unit="sample", desc="reading", disable=None) as reading,
         tqdm(total=epochs, unit="epoch", desc=f"training {args.model}", disable=None) as bar,
     ):
+        ended: list[float] = []  # when each epoch of this call ended
 
         def on_epoch(epoch: int, loss: float) -> None:
+            ended.append(time.perf_counter())
             bar.n = epoch
             bar.set_postfix(loss=f"{loss:.3f}")
             bar.refresh()
 
+        began = time.perf_counter()
         saved = trainer(dataset, args.out, options, on_epoch, reading.update)
+    pace = ""
+    if ended:  # the epochs after the first: the first also pays the loader's and device's start
+        pace = f"; {len(ended)} epochs in {ended[-1] - began:.1f} s (the first {ended[0] - began:.1f} s"
+        if len(ended) > 1:
+            rate = saved["samples"] * (len(ended) - 1) / (ended[-1] - ended[0])
+            pace += f", then {rate:.0f} samples/s"
+        pace += ")"
     print(
         f"{args.model}: {saved['samples']} samples, {saved['epoch']} epochs, final L1 loss "
-        f"{saved['losses'][-1]:.3f} m; wrote {args.out}"
+        f"{saved['losses'][-1]:.3f} m; wrote {args.out}{pace}"
     )
     return 0
 

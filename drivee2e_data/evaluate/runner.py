@@ -189,7 +189,7 @@ def evaluate_clip(
 ) -> dict[str, Any]:
     """Run one episode and write its row; an agent failure is a result, a broken clip is a row
     with status 'error'."""
-    start = time.perf_counter()
+    start, started_at = time.perf_counter(), time.time()
     row: dict[str, Any]
     try:
         scenario = store.read_scenario(root, scenario_id)
@@ -236,6 +236,8 @@ def evaluate_clip(
     except (DriveE2EError, ValueError, KeyError, OSError) as error:  # this clip only
         row = {"scenario_id": scenario_id, "status": "error", "failure": str(error)}
     row["wall_seconds"] = time.perf_counter() - start
+    # when (Unix seconds): a run's start-up and wind-down are what its episodes do not cover
+    row["started_at"], row["ended_at"] = started_at, time.time()
     row["peak_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     store.write_bytes_atomic(
         out / EPISODES_FOLDER / f"{scenario_id}.json", json.dumps(row, sort_keys=True).encode()

@@ -22,9 +22,8 @@ from torchmetrics import Metric
 
 from drivee2e_data.geometry import box_corners_2d
 from drivee2e_data.geometry import boxes_overlap as geometry_overlap
-from drivee2e_data.metrics import CONVENTIONS
+from drivee2e_data.metrics import CONVENTIONS, STEP_S
 
-STEP_S = 0.5
 HORIZONS_S = (1.0, 2.0, 3.0)
 
 

@@ -8,7 +8,11 @@ simulated time (the reference: real time).
     python scripts/dev/closedloop_breakdown.py RUN [RUN ...]
 
 RUN is an `evaluate` run folder (its `episodes.parquet`). Runs written before the episodes
-recorded their observe and agent seconds show those as n/a.
+recorded their observe and agent seconds show those as n/a. Where the episodes have their
+`started_at`/`ended_at` and the run folder files `command_started` and `command_ended` (Unix
+seconds, written around the command by scripts/dev/device_fourgpu.sh), a second table says
+how the command's time divides: before the first episode started (the process, its workers,
+the policy servers), the episodes' span, and after the last one ended.
 """
 
 from __future__ import annotations
@@ -48,6 +52,21 @@ def breakdown(run: Path) -> dict[str, float]:
     return result
 
 
+def phases(run: Path) -> tuple[float, float, float] | None:
+    """(start-up, the episodes' span, wind-down) seconds of a run whose command's times were
+    written beside it; None without them."""
+    times = [run / "command_started", run / "command_ended"]
+    if not all(path.is_file() for path in times):
+        return None
+    started, ended = (float(path.read_text()) for path in times)
+    rows = pq.read_table(run / "episodes.parquet", columns=None).to_pylist()
+    first = [row.get("started_at") for row in rows]
+    last = [row.get("ended_at") for row in rows]
+    if not rows or None in first or None in last:
+        return None
+    return min(first) - started, max(last) - min(first), ended - max(last)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -68,6 +87,16 @@ def main() -> None:
               f"| {b['rest_seconds']:.2f} | {b['sim_seconds']:.1f} "
               f"| {b['wall_seconds'] / max(b['sim_seconds'], 1e-9):.2f} "
               f"| {per_step[0]:.1f}, {per_step[1]:.1f}, {per_step[2]:.1f} |")  # fmt: skip
+    timed = [(run, phases(run)) for run in args.runs]
+    timed = [(run, p) for run, p in timed if p is not None]
+    if timed:
+        print("\n| run | command s | before the first episode | episodes' span | after the last |")
+        print("|---|---|---|---|---|")
+        for run, (before, span, after) in timed:
+            print(
+                f"| {run.name} | {before + span + after:.1f} | {before:.1f} | {span:.1f} "
+                f"| {after:.1f} |"
+            )
 
 
 if __name__ == "__main__":
