@@ -7,6 +7,11 @@
 # report of what is scored so far where the run has not finished.
 #   bash scripts/dev/device_benchmark.sh            # start (run from the repository root)
 #   bash scripts/dev/device_benchmark.sh --wait 540 # later calls
+# Carry .gl, .whl and .pb (scripts/gpu_env.sh installs from them; the host reaches no index).
+# A machine stays warm only 30 s after a call returns: a later call that comes after that finds
+# a fresh machine without the run (2026-11-28: a 530 s wait spent on a bare host), so start and
+# wait in the first call where the run fits in one (`... device_benchmark.sh && bash
+# scripts/dev/device_benchmark.sh --wait 500`), and make each later call at once.
 set -uo pipefail
 RUN=/tmp/bench
 HERE="$(cd "$(dirname "$0")" && pwd)"
