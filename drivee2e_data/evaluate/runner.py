@@ -425,13 +425,15 @@ def _start_servers(
             return []
         devices = ["cpu"]
     replies = tuple(SPAWN.Queue() for _ in range(workers))
+    # worker k is served by server k mod len(devices): each batch at the most a server serves
+    shape = -(-workers // len(devices))
     servers = []
     for device in devices:
         handle = ServerHandle(SPAWN.Queue(), replies)
         process = SPAWN.Process(
             target=serve,
             args=(options.agent, options.checkpoint, device, handle.requests, replies,
-                  agent_factory),
+                  agent_factory, shape),
             daemon=True,
         )  # fmt: skip
         process.start()
