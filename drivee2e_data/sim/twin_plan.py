@@ -27,6 +27,7 @@ from drivee2e_data.hdmap import Building, IntersectionMap, LaneMark, MarkColour,
 from drivee2e_data.scenario import SignalState
 from drivee2e_data.sim.models.mesh import Material, box_mesh
 from drivee2e_data.sim.obj_text import obj_text
+from drivee2e_data.sim.obstacles import obstacle_parts
 from drivee2e_data.sim.scenery import (
     LIT_WINDOW_RGBAS,
     WearRaster,
@@ -322,14 +323,9 @@ class _Planner:
             self._signal(head.signal_id, head.position_m, head.facing_yaw_rad, road)
         self._street_lamps(m, road)
         wear = wear_raster(m)
-        for obstacle in m.static_obstacles:
-            self._box(
-                obstacle.position_m,
-                obstacle.yaw_rad,
-                obstacle.size_m,
-                (1.0, 0.45, 0.0, 1.0),
-                "obstacle",
-            )
+        for obstacle in m.static_obstacles:  # cones, barriers, bollards... as models
+            for rgba, triangles in obstacle_parts(obstacle):
+                self._add("obstacle", rgba, triangles.reshape(-1, 3), np.arange(3 * len(triangles)))
         return TwinPlan(m.map_id, tuple(self.lamps), self._bodies(), tuple(self.paint),
                         tuple(self.street_lamps), wear)  # fmt: skip
 

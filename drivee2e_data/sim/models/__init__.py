@@ -24,8 +24,10 @@ __all__ = ["LOOK_VERSION", "Animation", "Light", "Material", "ModelMesh", "agent
 # centred on the ego's position rounded to 8 m (`gl_renderer.SHADOW_FOCUS_STEP_M`: shadow
 # edges sampled at another phase, the map's faded border elsewhere), no grass under the road;
 # 7: asphalt, marking and grass grain as smooth value noise instead of a hash per cell (no
-# texel blocks near the camera), faded where its cells shrink below a pixel.
-LOOK_VERSION = 7
+# texel blocks near the camera), faded where its cells shrink below a pixel; 8: static
+# obstacles as models (cones, barrels, bollards, barriers, signs: `sim/obstacles.py`), the
+# other kinds grey boxes instead of orange ones.
+LOOK_VERSION = 8
 STATURE_RANGE_M = (1.52, 1.70)  # pedestrians' heights, inside the 1.72 m blueprint box
 BUILD_RANGE = (0.85, 1.15)
 
