@@ -21,22 +21,8 @@ DATA=/tmp/fourgpu
 LOG="${OUT:-/tmp}/log.txt"
 say() { echo "$*" | tee -a "$LOG"; }
 start=$(date +%s)
-if [ ! -f /tmp/drivee2e_env ]; then
-    bash scripts/gpu_env.sh > /tmp/gpu_env.log 2>&1 || { tail -20 /tmp/gpu_env.log; exit 1; }
-fi
-# shellcheck disable=SC1091
-source /tmp/drivee2e_env
-export PATH="/tmp/proj/bin:$PATH"
-versions=(work)
-if [ -n "${BASE_TAR:-}" ]; then
-    # the working tree with the base's versions of the files that differ put back over it
-    rm -rf /tmp/base_src && mkdir -p /tmp/base_src && cp -r "$repo/." /tmp/base_src/
-    tar -xf "$BASE_TAR" -C /tmp/base_src
-    PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation \
-        --target /tmp/proj_base /tmp/base_src > /tmp/base_install.log 2>&1
-    python3 -m compileall -q /tmp/proj_base > /dev/null || true
-    versions=(base work)
-fi
+# shellcheck source=scripts/dev/device_env.sh
+source "$repo/scripts/dev/device_env.sh"  # the environment; `versions`
 gpus=$(nvidia-smi -L | wc -l)
 say "environment: $(( $(date +%s) - start )) s; $(nproc) cores; $gpus GPUs"
 cd /tmp || exit 1
