@@ -425,7 +425,8 @@ def _start_servers(
             return []
         devices = ["cpu"]
     replies = tuple(SPAWN.Queue() for _ in range(workers))
-    # worker k is served by server k mod len(devices): each batch at the most a server serves
+    # worker k is served by server k mod len(devices): a server's batches are as large as the
+    # most workers it serves
     shape = -(-workers // len(devices))
     servers = []
     for device in devices:

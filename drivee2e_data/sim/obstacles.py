@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import StaticObstacle
-from drivee2e_data.sim.models.mesh import box, loft, loft_caps
+from drivee2e_data.sim.models.mesh import box, loft, loft_caps, rotation_z
 
 ORANGE_RGBA = (1.0, 0.45, 0.0, 1.0)  # traffic cones' and barrels' plastic
 # a kind without a model (a parked bicycle, a stroller, a trailer): its box in a neutral grey
@@ -52,8 +52,7 @@ def obstacle_parts(obstacle: StaticObstacle) -> Parts:
         parts = _sign(length, width, height, SIGN_RGBAS[kind])
     else:
         parts = [(UNMODELLED_RGBA, box((0.0, 0.0, 0.0), (length, width, height)))]
-    c, s = np.cos(obstacle.yaw_rad), np.sin(obstacle.yaw_rad)
-    rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    rotation = rotation_z(obstacle.yaw_rad)
     centre = np.asarray(obstacle.position_m, dtype=np.float64)
     return [(rgba, triangles @ rotation.T + centre) for rgba, triangles in parts]
 
@@ -136,7 +135,7 @@ def _barrier(length: float, width: float, height: float, colour: tuple) -> Parts
     triangles = np.concatenate([loft(sections, rings).reshape(-1, 3, 3),
                                 loft_caps(sections, rings)])  # fmt: skip
     if not along_x:  # along y: turn the wall a quarter about z
-        triangles = triangles @ np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        triangles = triangles @ rotation_z(0.5 * np.pi).T
     return [(colour, triangles)]
 
 
