@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -133,40 +133,48 @@ def read_predictions(
 def score(
     dataset: DriveE2EDataset | FeatureCache,
     plans: dict[int, torch.Tensor],
-    convention: str = "stp3",
+    conventions: Sequence[str] = ("stp3",),
     on_samples: Callable[[int], None] | None = None,
-) -> dict[str, dict[str, float]]:
-    """Metrics overall (`all`) and per behaviour category, over the samples that have a plan:
-    of a Dataset's samples, or of the scoring feature cache's (`loaders.cache.SCORING`: the
-    same values, gathered from memory)."""
-    # torchmetrics (and the scipy it loads) only where scores are made: `predict` does without
-    # (2.4 s of a command's start on 2 cores)
-    from drivee2e_data.metrics.openloop import OpenLoopMetric
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Metrics per convention, overall (`all`) and per behaviour category, over the samples
+    that have a plan: of a Dataset's samples, or of the scoring feature cache's
+    (`loaders.cache.SCORING`: the same values, gathered from memory). Each sample's errors and
+    collisions are computed once, whatever the conventions and categories."""
+    # sums of plain tensors, not the torchmetrics Metric: its import (with scipy) was more than
+    # half of the command on 2 cores
+    from drivee2e_data.metrics.openloop import ErrorSums, sample_errors
 
-    if convention not in CONVENTIONS:
-        raise DriveE2EError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
+    for convention in conventions:
+        if convention not in CONVENTIONS:
+            raise DriveE2EError(
+                f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}"
+            )
     steps = dataset.horizons.future_steps
-    metrics: dict[str, OpenLoopMetric] = {}
+    sums: dict[str, ErrorSums] = {}
     counts: dict[str, int] = {}
     for chunk, batch in _batches(dataset, sorted(plans)):
-        plan = torch.stack([plans[i] for i in chunk])
-        agent_masks = batch["gt_agent_fut_masks"] & batch["gt_boxes_mask"][..., None]
+        errors, valid, hits = sample_errors(
+            torch.stack([plans[i] for i in chunk]),
+            batch["gt_ego_fut_trajs"],
+            batch["gt_ego_fut_masks"],
+            batch["ego_size"],
+            batch["ego_rear_axle_to_centre"],
+            batch["gt_agent_fut_boxes"],
+            batch["gt_agent_fut_masks"] & batch["gt_boxes_mask"][..., None],
+        )
         for category in {"all", *batch["category"]}:
             rows = [k for k, c in enumerate(batch["category"]) if category in ("all", c)]
-            metric = metrics.setdefault(category, OpenLoopMetric(steps, convention))
-            metric.update(
-                plan[rows],
-                batch["gt_ego_fut_trajs"][rows],
-                batch["gt_ego_fut_masks"][rows],
-                batch["ego_size"][rows],
-                batch["ego_rear_axle_to_centre"][rows],
-                batch["gt_agent_fut_boxes"][rows],
-                agent_masks[rows],
+            sums.setdefault(category, ErrorSums.zeros(steps)).add(
+                errors[rows], valid[rows], hits[rows] if hits is not None else None
             )
             counts[category] = counts.get(category, 0) + len(rows)
         if on_samples is not None:
             on_samples(len(chunk))
-    results = {}
-    for category in sorted(metrics, key=lambda c: (c != "all", c)):
-        results[category] = {"samples": counts[category], **metrics[category].compute()}
-    return results
+    ordered = sorted(sums, key=lambda c: (c != "all", c))
+    return {
+        convention: {
+            category: {"samples": counts[category], **sums[category].summary(convention)}
+            for category in ordered
+        }
+        for convention in conventions
+    }

@@ -140,6 +140,26 @@ def test_a_truncated_log_is_refused_clearly(collected_root: Path, tmp_path: Path
         LogReader(truncated)
 
 
+def test_metadata_read_through_the_summary_offsets_equals_the_whole_summarys(
+    collected_root: Path, tmp_path: Path
+):
+    """A log opens reading only its metadata (through the summary offsets); a log without
+    summary offsets (another writer) opens through its whole summary, to the same values."""
+    data = bytearray(_log(collected_root, 1).read_bytes())
+    with LogReader(_log(collected_root, 1)) as log:
+        assert log._summary is None  # not parsed to open the log
+        fast, frames = log.metadata, log.frame(log.first_frame + 5)
+        assert len(log.summary.chunk_indexes) > 0 and log._summary is not None  # on first use
+    # the footer's summary-offset start (8 bytes before its CRC and the closing magic) zeroed
+    data[-20:-12] = bytes(8)
+    plain = tmp_path / "no_offsets.mcap"
+    plain.write_bytes(bytes(data))
+    with LogReader(plain) as log:
+        assert log._summary is not None  # read whole to find the metadata
+        assert log.metadata == fast and log.frame(log.first_frame + 5).keys() == frames.keys()
+        assert log.collection == fast[topics.COLLECTION_METADATA]
+
+
 def test_one_frame_is_read_without_reading_the_whole_file(collected_root: Path):
     path = _log(collected_root)
     io_counters = Path("/proc/self/io")

@@ -291,3 +291,30 @@ def test_cli_trains_admlp_and_scores_it(loader_root: Path, tmp_path: Path) -> No
     assert pq.read_table(predictions).num_rows == 8
     assert main(["predict", str(loader_root), "--model", "admlp", "--out", str(predictions)]) == 2
     assert os.path.exists(predictions)
+
+
+def test_errors_computed_once_score_every_convention_and_subset_as_metrics_do() -> None:
+    """`drivee2e openloop` computes each sample's errors and collisions once and sums subsets
+    of rows (the categories) for every convention: the same numbers as a Metric per convention
+    fed each subset as a batch of its own."""
+    from drivee2e_data.metrics.openloop import ErrorSums, sample_errors
+
+    generator = torch.Generator().manual_seed(3)
+    truth, mask = _truth(8)
+    mask[5, 4:] = False  # a clip's end
+    plan = truth + torch.randn(8, STEPS, 2, generator=generator, dtype=torch.float64)
+    size = torch.tensor([[4.5, 1.9, 1.5]] * 8, dtype=torch.float64)
+    offset = torch.full((8,), 1.3, dtype=torch.float64)
+    boxes = torch.zeros(8, 2, STEPS, 5, dtype=torch.float64)
+    boxes[..., 0], boxes[..., 2:4] = truth[:, None, :, 0] + 3.0, torch.tensor([4.0, 2.0])
+    agent_masks = torch.ones(8, 2, STEPS, dtype=torch.bool)
+    inputs = (plan, truth, mask, size, offset, boxes, agent_masks)
+    errors, valid, hits = sample_errors(*inputs)
+    assert hits is not None and hits.any() and not hits.all()  # collisions are scored
+    rows = [0, 2, 5, 7]
+    sums = ErrorSums.zeros(STEPS)
+    sums.add(errors[rows], valid[rows], hits[rows])
+    for convention in ("stp3", "uniad"):
+        metric = OpenLoopMetric(STEPS, convention)
+        metric.update(*(value[rows] for value in inputs))
+        assert sums.summary(convention) == metric.compute()

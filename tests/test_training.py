@@ -52,23 +52,3 @@ def test_checkpoints_are_written_when_due_and_after_the_last_epoch(
                 {"kind": "toy"})  # fmt: skip
     assert again["losses"] == result["losses"]
     assert torch.equal(again["model"]["weight"], result["model"]["weight"])
-
-
-def test_brightness_gains_follow_the_saved_counter_and_loaded_weights() -> None:
-    from drivee2e_data.agents import augment
-    from drivee2e_data.agents.camera import CameraPolicy
-
-    def expected(step: int) -> torch.Tensor:
-        generator = torch.Generator().manual_seed(step)
-        return torch.empty(4, 1).uniform_(*augment.GAIN_RANGE, generator=generator)
-
-    model = CameraPolicy()
-    first = augment.brightness_gains(model, (4, 1), torch.device("cpu"))
-    second = augment.brightness_gains(model, (4, 1), torch.device("cpu"))
-    assert torch.equal(first, expected(0)) and torch.equal(second, expected(1))
-    assert int(model.augment_step) == 2  # the saved counter advanced with the host's copy
-    # weights saved at another count: the next gains are that count's, not the host copy's
-    state = {**model.state_dict(), "augment_step": torch.tensor(7)}
-    model.load_state_dict(state)
-    assert torch.equal(augment.brightness_gains(model, (4, 1), torch.device("cpu")), expected(7))
-    assert int(model.augment_step) == 8

@@ -16,8 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from drivee2e_data.agents import augment, training
 from drivee2e_data.agents import checkpoint as checkpoints
+from drivee2e_data.agents import training
 from drivee2e_data.agents.device import agent_device
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
@@ -64,14 +64,19 @@ class CameraPolicy(nn.Module):
             nn.Linear(16 + 6, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
             nn.Linear(256, steps * 2),
         )  # fmt: skip
-        augment.add_counter(self)  # training's brightness gains are drawn from a saved counter
+        # training draws a brightness gain per image from this counter: saved with the weights,
+        # so a resumed training draws what an uninterrupted one would
+        self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
 
     def forward(self, images: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """images: (B, K, 3, H, W) uint8; vector: (B, 6) command one-hot, speed, target."""
         batch, cameras = images.shape[:2]
         pixels = images.flatten(0, 1).float() / 255.0
         if self.training:
-            gain = augment.brightness_gains(self, (batch, 1, 1, 1, 1), pixels.device)
+            generator = torch.Generator().manual_seed(int(self.augment_step))
+            self.augment_step += 1
+            gain = torch.empty(batch, 1, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
+            gain = gain.to(pixels.device)
             pixels = (pixels.view(batch, cameras, *pixels.shape[1:]) * gain).clamp(0.0, 1.0)
             pixels = pixels.flatten(0, 1)
         features = self.encoder((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)

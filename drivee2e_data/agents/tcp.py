@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from drivee2e_data.agents import augment, camera, training
+from drivee2e_data.agents import camera, training
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD
 from drivee2e_data.agents.device import agent_device
@@ -70,7 +70,7 @@ class TCPPolicy(nn.Module):
         self.decoder = nn.GRUCell(4, GRU_HIDDEN)
         self.step_out = nn.Linear(GRU_HIDDEN, 2)
         self.speed = nn.Sequential(nn.Linear(256, 64), nn.ReLU(), nn.Linear(64, 1))
-        augment.add_counter(self)  # training's brightness gains are drawn from a saved counter
+        self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
 
     def forward(
         self, images: torch.Tensor, vector: torch.Tensor
@@ -78,8 +78,10 @@ class TCPPolicy(nn.Module):
         batch, cameras = images.shape[:2]
         pixels = images.flatten(0, 1).float() / 255.0
         if self.training:  # a brightness gain per image, drawn from a counter saved with it
-            gain = augment.brightness_gains(self, (batch * cameras, 1, 1, 1), pixels.device)
-            pixels = (pixels * gain).clamp(0.0, 1.0)
+            generator = torch.Generator().manual_seed(int(self.augment_step))
+            self.augment_step += 1
+            gain = torch.empty(batch * cameras, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
+            pixels = (pixels * gain.to(pixels.device)).clamp(0.0, 1.0)
         normalised = (pixels - PIXEL_MEAN) / PIXEL_STD
         if normalised.is_cuda:  # the convolutions' fast layout there
             normalised = normalised.contiguous(memory_format=torch.channels_last)

@@ -319,9 +319,9 @@ def run_openloop(args: argparse.Namespace) -> int:
         )
     dataset = _labels_only(args) if args.no_cache else _cached(args, _scoring_spec())
     plans = openloop.read_predictions(args.predictions, dataset)
-    for convention in conventions:
-        with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
-            results = openloop.score(dataset, plans, convention, bar.update)
+    with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
+        scored = openloop.score(dataset, plans, conventions, bar.update)
+    for convention, results in scored.items():
         _print_openloop(results, convention, args.split, len(plans), len(dataset))
         if args.json is not None:
             path = Path(str(args.json).replace("{convention}", convention))

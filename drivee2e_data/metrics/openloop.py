@@ -15,10 +15,10 @@ sums and counts per step, which add across batches, processes and devices.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import torch
-from torchmetrics import Metric
 
 from drivee2e_data.geometry import box_corners_2d
 from drivee2e_data.geometry import boxes_overlap as geometry_overlap
@@ -77,6 +77,36 @@ def collisions(
     return (hits & agent_masks.bool()).any(dim=1)
 
 
+def sample_errors(
+    plan: torch.Tensor,
+    truth: torch.Tensor,
+    mask: torch.Tensor,
+    size_m: torch.Tensor | None = None,
+    rear_axle_to_centre_m: torch.Tensor | None = None,
+    agent_boxes: torch.Tensor | None = None,
+    agent_masks: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """Each sample's L2 per step `(B, T)` float64, the steps the log has `(B, T)` bool, and
+    whether the planned box hits an agent at each step `(B, T)` bool (None without the
+    agents): what `OpenLoopMetric` sums, row by row, so any subset of rows scores as if it had
+    been a batch of its own. Arguments as `OpenLoopMetric.update` takes them."""
+    if plan.shape != truth.shape or plan.shape[:2] != mask.shape:
+        raise ValueError(
+            f"plan {tuple(plan.shape)}, truth {tuple(truth.shape)} and mask "
+            f"{tuple(mask.shape)}: expected (B, T, 2), (B, T, 2) and (B, T)"
+        )
+    valid = mask.bool()
+    errors = l2_per_step(plan, truth)
+    if agent_boxes is None or agent_masks is None:
+        return errors, valid, None
+    if size_m is None or rear_axle_to_centre_m is None:
+        raise ValueError("collisions need the ego's size and rear-axle offset")
+    hits = collisions(
+        plan.cpu(), size_m.cpu(), rear_axle_to_centre_m.cpu(), agent_boxes.cpu(), agent_masks.cpu()
+    )
+    return errors, valid, hits.to(valid.device)
+
+
 def summarize(
     sums: torch.Tensor, counts: torch.Tensor, convention: str, prefix: str
 ) -> dict[str, float]:
@@ -103,65 +133,44 @@ def summarize(
     return result
 
 
-class OpenLoopMetric(Metric):
-    """L2 and collision rate accumulated over batches (and, through torchmetrics' sync, over
-    processes and devices: every state is a sum).
+@dataclass
+class ErrorSums:
+    """Per-step sums and counts of samples' `sample_errors` (float64 `(T,)` each): what the
+    metrics of every convention are computed from. Rows add in any grouping."""
 
-    `update(plan, truth, mask, size_m=None, rear_axle_to_centre_m=None, agent_boxes=None,
-    agent_masks=None)` takes a batch as `DriveE2EDataset` gives it: `gt_ego_fut_trajs`,
-    `gt_ego_fut_masks`, `ego_size`, `ego_rear_axle_to_centre`, `gt_agent_fut_boxes` with
-    `gt_agent_fut_masks & gt_boxes_mask[..., None]`. Without the agents only L2 is scored.
-    """
+    l2_sum: torch.Tensor
+    l2_count: torch.Tensor
+    collision_sum: torch.Tensor
+    collision_count: torch.Tensor
 
-    full_state_update = False
+    @classmethod
+    def zeros(cls, steps: int) -> ErrorSums:
+        return cls(*(torch.zeros(steps, dtype=torch.float64) for _ in range(4)))
 
-    def __init__(self, steps: int = 6, convention: str = "stp3", **kwargs: Any) -> None:
-        super().__init__(**kwargs)
-        if convention not in CONVENTIONS:
-            raise ValueError(f"convention {convention!r}: expected one of {', '.join(CONVENTIONS)}")
-        self.convention = convention
-        for name in ("l2_sum", "l2_count", "collision_sum", "collision_count"):
-            self.add_state(
-                name, default=torch.zeros(steps, dtype=torch.float64), dist_reduce_fx="sum"
-            )
-
-    def update(
-        self,
-        plan: torch.Tensor,
-        truth: torch.Tensor,
-        mask: torch.Tensor,
-        size_m: torch.Tensor | None = None,
-        rear_axle_to_centre_m: torch.Tensor | None = None,
-        agent_boxes: torch.Tensor | None = None,
-        agent_masks: torch.Tensor | None = None,
-    ) -> None:
-        if plan.shape != truth.shape or plan.shape[:2] != mask.shape:
-            raise ValueError(
-                f"plan {tuple(plan.shape)}, truth {tuple(truth.shape)} and mask "
-                f"{tuple(mask.shape)}: expected (B, T, 2), (B, T, 2) and (B, T)"
-            )
-        valid = mask.bool()
-        errors = l2_per_step(plan, truth)
+    def add(self, errors: torch.Tensor, valid: torch.Tensor, hits: torch.Tensor | None) -> None:
+        """Accumulate rows of `sample_errors`."""
         self.l2_sum += torch.where(valid, errors, 0.0).sum(0).to(self.l2_sum)
         self.l2_count += valid.sum(0).to(self.l2_count)
-        if agent_boxes is not None and agent_masks is not None:
-            if size_m is None or rear_axle_to_centre_m is None:
-                raise ValueError("collisions need the ego's size and rear-axle offset")
-            hits = collisions(
-                plan.cpu(),
-                size_m.cpu(),
-                rear_axle_to_centre_m.cpu(),
-                agent_boxes.cpu(),
-                agent_masks.cpu(),
-            )
-            hits = hits.to(valid.device) & valid
-            self.collision_sum += hits.sum(0).to(self.collision_sum)
+        if hits is not None:
+            self.collision_sum += (hits & valid).sum(0).to(self.collision_sum)
             self.collision_count += valid.sum(0).to(self.collision_count)
 
-    def compute(self) -> dict[str, float]:
-        result = summarize(self.l2_sum, self.l2_count, self.convention, "l2")
+    def summary(self, convention: str) -> dict[str, float]:
+        """L2 (and the collision rate where agents were scored) in `convention`."""
+        result = summarize(self.l2_sum, self.l2_count, convention, "l2")
         if float(self.collision_count.sum()) > 0:
             result.update(
-                summarize(self.collision_sum, self.collision_count, self.convention, "collision")
+                summarize(self.collision_sum, self.collision_count, convention, "collision")
             )
         return result
+
+
+def __getattr__(name: str) -> Any:
+    # `OpenLoopMetric` is a torchmetrics Metric, and importing torchmetrics (with the scipy it
+    # loads) took 3.8 s of the 6.5 s of `drivee2e openloop` on 2 cores: scoring files needs only
+    # `ErrorSums`, so the Metric is defined on first use (`metrics/openloop_metric.py`)
+    if name == "OpenLoopMetric":
+        from drivee2e_data.metrics.openloop_metric import OpenLoopMetric
+
+        return OpenLoopMetric
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
