@@ -561,3 +561,34 @@ def test_the_rain_canvas_is_zero_again_after_each_image_even_a_failed_one():
         conditions._rain(rgb, np.random.default_rng(2))  # fails after drawing
     assert not conditions._streak_canvas((90, 160)).any()
     assert np.array_equal(conditions._rain(rgb, np.random.default_rng(1)), first)
+
+
+def test_buildings_stand_farther_out_where_the_roads_leave_no_room_and_the_report_says_so(
+    monkeypatch: pytest.MonkeyPatch,
+):
+    import shapely
+    from factories import small_map
+
+    from drivee2e_data.hdmap import StopLine
+    from drivee2e_data.sim import scenery
+
+    bare = small_map(stop_lines=(StopLine("s", np.array([[50.0, 1.75], [50.0, -1.75]]), ("l1",)),))
+    centre = shapely.Point(*scenery.junction_centre(bare))
+
+    def farthest(buildings: list) -> float:
+        return max(shapely.Polygon(b.footprint_m).centroid.distance(centre) for b in buildings)
+
+    near = scenery.generated_buildings(bare)
+    assert len(near) >= scenery.MIN_GENERATED_BUILDINGS
+    assert farthest(near) <= scenery.BUILDING_REACH_M
+    # as if the reach held too little room: the buildings go out to the last reach
+    monkeypatch.setattr(scenery, "MIN_GENERATED_BUILDINGS", len(near) + 1)
+    far = scenery.generated_buildings(bare)
+    assert len(far) > len(near)
+    assert scenery.BUILDING_REACH_M < farthest(far) <= scenery.BUILDING_REACHES_M[-1]
+    report = scenery.scenery_report(bare)
+    assert report.generated_buildings == len(far) and "buildings generated" in report.line()
+    # no room at any reach: the report says so
+    monkeypatch.setattr(scenery, "BUILDING_REACHES_M", (5.0,))
+    assert scenery.scenery_report(bare).generated_buildings == 0
+    assert "no room for buildings" in scenery.scenery_report(bare).line()

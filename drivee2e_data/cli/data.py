@@ -188,6 +188,10 @@ def run_import(args: argparse.Namespace) -> int:
                   f"{plane.slope_y:+.3f} y, and the road's curvature: {plane.residual_rms_m:.2f} m "
                   f"RMS; what stays is the flat-ground error, {plane.field_rms_m:.2f} m RMS over "
                   f"{plane.points} points)")  # fmt: skip
+    from drivee2e_data.sim.scenery import scenery_report
+
+    for map_id in summary.maps:  # what each twin stands beside its roads
+        print(f"scenery of {scenery_report(store.read_map(Path(args.out), map_id)).line()}")
     for recording, cut in summary.cuts.items():
         print(f"{recording} cut into clips:")
         print("\n".join(cut.lines()))

@@ -15,6 +15,11 @@ from drivee2e_data.hdmap import Building, IntersectionMap
 
 BUILDING_SETBACK_M = 3.0  # generated buildings keep this far from road, crosswalks and sidewalks
 BUILDING_REACH_M = 90.0  # ...and stand within this distance of the junction
+# where that leaves room for fewer than this many, the reach grows step by step to the last
+# (nuScenes' drivable area fills all but 1,187 m2 of the 90 m disc around scene-0061's junction:
+# no building stood there, an open plain to the horizon; 21,195 m2 are free within 150 m)
+MIN_GENERATED_BUILDINGS = 6
+BUILDING_REACHES_M = (BUILDING_REACH_M, 135.0, 180.0)
 BUILDING_GRID_M = 22.0  # one candidate building per grid cell
 STREET_LAMP_SPACING_M = 30.0
 STREET_LAMP_REACH_M = 110.0  # lamps stand within this of the junction's centre
@@ -40,22 +45,39 @@ class WearRaster:
 def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
     """Buildings for a map that has none, placed deterministically (seeded by the map id) in the
     free space at least `BUILDING_SETBACK_M` from road, crosswalks and sidewalks, within
-    `BUILDING_REACH_M` of the junction, each turned to the nearest lane; flagged `generated`."""
-    road = shapely.union_all(
+    `BUILDING_REACH_M` of the junction (farther, up to the last of `BUILDING_REACHES_M`, where
+    fewer than `MIN_GENERATED_BUILDINGS` fit), each turned to the nearest lane; flagged
+    `generated`."""
+    keep_out = _built_up(intersection_map).buffer(BUILDING_SETBACK_M)
+    buildings: list[Building] = []
+    for reach_m in BUILDING_REACHES_M:
+        buildings = _buildings_within(intersection_map, keep_out, reach_m)
+        if len(buildings) >= MIN_GENERATED_BUILDINGS:
+            break
+    return buildings
+
+
+def _built_up(intersection_map: IntersectionMap) -> shapely.Geometry:
+    """Road, crosswalks and sidewalks: where no building stands."""
+    return shapely.union_all(
         [intersection_map.drivable_union(), *(shapely.Polygon(c.polygon_m) for c in intersection_map.crosswalks),
          *(shapely.Polygon(a.polygon_m) for a in intersection_map.sidewalks)]
     )  # fmt: skip
-    keep_out = road.buffer(BUILDING_SETBACK_M)
+
+
+def _buildings_within(
+    intersection_map: IntersectionMap, keep_out: shapely.Geometry, reach_m: float
+) -> list[Building]:
+    """One candidate building per `BUILDING_GRID_M` cell within `reach_m` of the junction, kept
+    where it clears `keep_out` and the buildings before it."""
     centre = junction_centre(intersection_map)
     rng = np.random.default_rng(zlib.crc32(intersection_map.map_id.encode()))
     placed: list[shapely.Polygon] = []
     buildings = []
-    for x in np.arange(centre[0] - BUILDING_REACH_M, centre[0] + BUILDING_REACH_M, BUILDING_GRID_M):
-        for y in np.arange(
-            centre[1] - BUILDING_REACH_M, centre[1] + BUILDING_REACH_M, BUILDING_GRID_M
-        ):
+    for x in np.arange(centre[0] - reach_m, centre[0] + reach_m, BUILDING_GRID_M):
+        for y in np.arange(centre[1] - reach_m, centre[1] + reach_m, BUILDING_GRID_M):
             point = shapely.Point(x, y)
-            if keep_out.contains(point) or point.distance(shapely.Point(centre)) > BUILDING_REACH_M:
+            if keep_out.contains(point) or point.distance(shapely.Point(centre)) > reach_m:
                 continue
             heading = _heading_near(intersection_map, point)
             length, depth = rng.uniform(10, 20), rng.uniform(8, 16)
@@ -73,6 +95,55 @@ def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
             buildings.append(Building(f"generated_{len(buildings):03d}", np.asarray(footprint.exterior.coords)[:-1],
                                       float(rng.choice([6.0, 9.0, 15.0, 24.0, 40.0])), generated=True))  # fmt: skip
     return buildings
+
+
+@dataclass(frozen=True)
+class SceneryReport:
+    """What a map's twin stands beside its roads: the map's own buildings or the generated ones
+    (and the farthest of them from the junction), the street lamps, and the room the map
+    leaves within `BUILDING_REACH_M` of the junction."""
+
+    map_id: str
+    map_buildings: int
+    generated_buildings: int
+    farthest_building_m: float
+    street_lamps: int
+    free_near_junction_m2: float
+
+    def line(self) -> str:
+        room = (
+            f"{self.free_near_junction_m2:,.0f} m2 beside the roads within {BUILDING_REACH_M:g} m"
+        )
+        if self.map_buildings:
+            built = f"{self.map_buildings} buildings from the map"
+        elif self.generated_buildings:
+            built = (f"{self.generated_buildings} buildings generated, the farthest "
+                     f"{self.farthest_building_m:.0f} m from the junction")  # fmt: skip
+        else:
+            built = "no room for buildings (the map's roads and sidewalks cover it)"
+        return f"{self.map_id}: {built}; {self.street_lamps} street lamps; {room}"
+
+
+def scenery_report(intersection_map: IntersectionMap) -> SceneryReport:
+    """The scenery a twin of this map gets (`SceneryReport`), without building the twin."""
+    built_up = _built_up(intersection_map)
+    centre = junction_centre(intersection_map)
+    generated = [] if intersection_map.buildings else generated_buildings(intersection_map)
+    farthest = max(
+        (
+            shapely.Polygon(b.footprint_m).centroid.distance(shapely.Point(centre))
+            for b in generated
+        ),
+        default=0.0,
+    )
+    return SceneryReport(
+        intersection_map.map_id,
+        len(intersection_map.buildings),
+        len(generated),
+        float(farthest),
+        len(street_lamp_sites(intersection_map, intersection_map.drivable_union())),
+        float(shapely.Point(centre).buffer(BUILDING_REACH_M).difference(built_up).area),
+    )
 
 
 def _heading_near(intersection_map: IntersectionMap, point: shapely.Point) -> float:

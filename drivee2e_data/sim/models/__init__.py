@@ -26,8 +26,10 @@ __all__ = ["LOOK_VERSION", "Animation", "Light", "Material", "ModelMesh", "agent
 # 7: asphalt, marking and grass grain as smooth value noise instead of a hash per cell (no
 # texel blocks near the camera), faded where its cells shrink below a pixel; 8: static
 # obstacles as models (cones, barrels, bollards, barriers, signs: `sim/obstacles.py`), the
-# other kinds grey boxes instead of orange ones.
-LOOK_VERSION = 8
+# other kinds grey boxes instead of orange ones; 9: generated buildings farther out (up to
+# 180 m from the junction) where a map's roads leave no room for them nearer
+# (`scenery.BUILDING_REACHES_M`: nuScenes maps).
+LOOK_VERSION = 9
 STATURE_RANGE_M = (1.52, 1.70)  # pedestrians' heights, inside the 1.72 m blueprint box
 BUILD_RANGE = (0.85, 1.15)
 
