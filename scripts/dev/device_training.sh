@@ -6,7 +6,9 @@
 # utilisation logged each second; with BASE_TAR, a short training (SHORT_EPOCHS) with that
 # version and with this one on the same cache, one after the other; AD-MLP trained on the CPU;
 # open loop (predict, then both conventions scored) of constant velocity (twice: the first run
-# builds the val clips' scoring cache), AD-MLP and TCP. Each step's seconds go to
+# builds the val clips' scoring cache), AD-MLP and TCP; the training step's probe
+# (scripts/dev/bench_training_step.py, STEP_PROBE=0: not); TCP's closed loop twice on CLOSEDLOOP
+# val clips (0: not), to see whether GPU runs repeat to the bit. Each step's seconds go to
 # /tmp/training/log.txt as it ends.
 #   [BASE_TAR=out/base_overlay.tar] bash scripts/dev/device_training.sh && \
 #       bash scripts/dev/device_training.sh --wait 500   # the first call: start, then wait
@@ -23,7 +25,8 @@ if [ "${1:-}" = --wait ]; then
     cat "$LOG"
     if [ -n "${OUT:-}" ]; then
         cp "$LOG" "$OUT/log.txt"
-        tar -czf "$OUT/training.tar.gz" -C "$RUN" logs util.csv openloop 2>/dev/null
+        tar -czf "$OUT/training.tar.gz" -C "$RUN" logs util.csv openloop \
+            $(cd "$RUN" && ls -d runs/*/summary.json runs/*/episodes.parquet 2>/dev/null)
     fi
     exit 0
 fi
@@ -111,6 +114,38 @@ run() {
             --predictions "$RUN/openloop/$name.parquet" --convention stp3 uniad \
             --json "$RUN/openloop/${name}_{convention}.json"
     done
+    # what bounds the training step (the feed, the step, the trunk compiled): STEP_PROBE=1
+    if [ "${STEP_PROBE:-1}" = 1 ]; then
+        step step-probe python3 "$repo/scripts/dev/bench_training_step.py" "$DATA" \
+            --split-name "$manifest" --compile default reduce-overhead
+        grep -h "samples/s" "$RUN/logs/step-probe.log" | sed 's/^/  /' >> "$LOG"
+    fi
+    # closed loop of TCP twice on CLOSEDLOOP val clips: the same episodes to the bit? (the
+    # policy server's fixed-size batches, issue 60)
+    if [ "${CLOSEDLOOP:-40}" -gt 0 ]; then
+        python3 - "$manifest" "${CLOSEDLOOP:-40}" "$RUN/closedloop.csv" <<'PY'
+import csv, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+val = [r for r in rows if r["split"] == "val"][: int(sys.argv[2])]
+with open(sys.argv[3], "w", newline="") as out:
+    writer = csv.DictWriter(out, fieldnames=list(rows[0]))
+    writer.writeheader()
+    writer.writerows(val)
+PY
+        for run in first second; do
+            step "closedloop-tcp-$run" drivee2e evaluate "$DATA" --split val \
+                --split-name "$RUN/closedloop.csv" --agent tcp --checkpoint "$RUN/tcp.pt" \
+                --workers auto --out "$RUN/runs/tcp-$run"
+            say "  $(grep -h "DS" "$RUN/logs/closedloop-tcp-$run.log" | tail -2 | tr '\n' ' ')"
+        done
+        if cmp -s "$RUN/runs/tcp-first/summary.json" "$RUN/runs/tcp-second/summary.json"; then
+            say "  closed loop repeated: the same summary.json"
+        else
+            say "  closed loop differs between the two runs: $(diff <(python3 -m json.tool \
+                "$RUN/runs/tcp-first/summary.json") <(python3 -m json.tool \
+                "$RUN/runs/tcp-second/summary.json") | head -6 | tr '\n' ' ')"
+        fi
+    fi
     say "total: $(( $(date +%s) - start )) s"
 }
 run
