@@ -35,6 +35,8 @@ from drivee2e_data.sensors.ego_state import (
 RECORD_HEAD_SIZE = 9  # a record's opcode (1 byte) and length (8), as MCAP lays them out
 FOOTER_RECORD_SIZE = RECORD_HEAD_SIZE + 20  # the footer: two offsets and a CRC
 MAGIC_SIZE = 8  # the closing magic
+# what reading a damaged or cut log raises, in the mcap library and below it
+READ_ERRORS = (McapError, ValueError, EOFError, OSError, ZstdError, struct.error)
 REQUIRED_METADATA = (
     topics.SCENARIO_METADATA,
     topics.RIG_METADATA,
@@ -61,7 +63,7 @@ class LogReader:
                 metadata = {
                     record.name: dict(record.metadata) for record in self._reader.iter_metadata()
                 }
-        except (McapError, ValueError, EOFError, OSError, ZstdError, struct.error) as error:
+        except READ_ERRORS as error:
             self._file.close()
             raise LogFormatError(f"{self.path}: not a complete MCAP log ({error})") from None
         except LogFormatError:
@@ -89,7 +91,7 @@ class LogReader:
         if self._summary is None:
             try:
                 self._summary = self._whole_summary()
-            except (McapError, ValueError, EOFError, OSError, ZstdError) as error:
+            except READ_ERRORS as error:
                 raise LogFormatError(f"{self.path}: not a complete MCAP log ({error})") from None
         return self._summary
 

@@ -48,7 +48,12 @@ def generated_buildings(intersection_map: IntersectionMap) -> list[Building]:
     `BUILDING_REACH_M` of the junction (farther, up to the last of `BUILDING_REACHES_M`, where
     fewer than `MIN_GENERATED_BUILDINGS` fit), each turned to the nearest lane; flagged
     `generated`."""
-    keep_out = _built_up(intersection_map).buffer(BUILDING_SETBACK_M)
+    return _generated(intersection_map, _built_up(intersection_map))
+
+
+def _generated(intersection_map: IntersectionMap, built_up: shapely.Geometry) -> list[Building]:
+    """`generated_buildings` given the map's `_built_up` area."""
+    keep_out = built_up.buffer(BUILDING_SETBACK_M)
     buildings: list[Building] = []
     for reach_m in BUILDING_REACHES_M:
         buildings = _buildings_within(intersection_map, keep_out, reach_m)
@@ -128,7 +133,7 @@ def scenery_report(intersection_map: IntersectionMap) -> SceneryReport:
     """The scenery a twin of this map gets (`SceneryReport`), without building the twin."""
     built_up = _built_up(intersection_map)
     centre = junction_centre(intersection_map)
-    generated = [] if intersection_map.buildings else generated_buildings(intersection_map)
+    generated = [] if intersection_map.buildings else _generated(intersection_map, built_up)
     farthest = max(
         (
             shapely.Polygon(b.footprint_m).centroid.distance(shapely.Point(centre))
