@@ -60,6 +60,57 @@ def test_the_policy_learns_plans_that_follow_the_command(tmp_path: Path, monkeyp
     assert (seen_speed - 4.0).abs().max() < 0.5
 
 
+def test_the_augmentation_draws_from_the_counter_it_was_loaded_with():
+    """The brightness gains follow the step counter saved with the weights, also after a
+    `load_state_dict` into a model that had already drawn (its host copy is read again)."""
+    from drivee2e_data.agents.camera import brightness_gains
+
+    def gains_of(step: int) -> torch.Tensor:
+        return torch.empty(6).uniform_(0.7, 1.3, generator=torch.Generator().manual_seed(step))
+
+    trained, fresh = tcp.TCPPolicy(3, 6, 8, (1, 1)), tcp.TCPPolicy(3, 6, 8, (1, 1))
+    cpu = torch.device("cpu")
+    for step in range(3):
+        assert torch.equal(brightness_gains(trained, 6, cpu), gains_of(step))
+    assert int(trained.augment_step) == 3
+    assert torch.equal(brightness_gains(fresh, 6, cpu), gains_of(0))
+    fresh.load_state_dict(trained.state_dict())
+    assert torch.equal(brightness_gains(fresh, 6, cpu), gains_of(3))
+    assert int(fresh.augment_step) == 4
+    # what the forward pass draws: the images times those gains
+    images = torch.full((2, 3, 3, 8, 8), 128, dtype=torch.uint8)
+    pixels = fresh.train().normalise(images) * tcp.PIXEL_STD + tcp.PIXEL_MEAN
+    assert torch.allclose(pixels[:, 0, 0, 0], (128 / 255 * gains_of(4)).clamp(0, 1), atol=1e-6)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+def test_a_training_replaying_cuda_graphs_is_the_eager_training(tmp_path: Path) -> None:
+    """On a GPU: TCP trained with its step recorded as CUDA graphs (bfloat16 autocast, last
+    batch shorter, so eager) against the same training launching every kernel: the same losses
+    and weights to the GPU's arithmetic, the batch norms' statistics untouched by the capture."""
+    torch.manual_seed(0)
+    count = 40  # batches of 16, 16 and 8
+    images = torch.randint(0, 255, (count, 3, 3, 36, 64), dtype=torch.uint8)
+    vector, speed = torch.rand(count, 6), torch.rand(count) * 10
+    y = torch.cumsum(torch.rand(count, 6, 2), 1)
+    data = {"images": images, "vector": vector, "speed": speed, "y": y,
+            "mask": torch.ones(count, 6, dtype=torch.bool)}  # fmt: skip
+    options = TrainOptions(epochs=3, batch_size=16, learning_rate=1e-3)
+    results = []
+    for capture in (None, tcp._capture):
+        torch.manual_seed(0)
+        model = tcp.TCPPolicy(3, 6, width=16, blocks=(1, 1, 1))
+        model.trunk.to(memory_format=torch.channels_last)
+        saved = fit(model, data, tcp._predict, tmp_path / f"{capture is None}.pt", options,
+                    {"kind": "tcp"}, device="cuda", mixed_precision=True, capture=capture)  # fmt: skip
+        assert bool(model._graphs) == (capture is not None)
+        results.append(saved)
+    eager, graphed = results
+    assert graphed["losses"] == pytest.approx(eager["losses"], rel=1e-3)
+    for key, value in eager["model"].items():
+        assert torch.allclose(graphed["model"][key].float(), value.float(), atol=1e-3), key
+
+
 @pytest.mark.slow
 def test_tcp_trains_resumes_plans_and_drives_a_clip(loader_root: Path, tmp_path: Path) -> None:
     checkpoint = tmp_path / "tcp.pt"

@@ -67,20 +67,45 @@ class CameraPolicy(nn.Module):
         # training draws a brightness gain per image from this counter: saved with the weights,
         # so a resumed training draws what an uninterrupted one would
         self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
+        self.register_load_state_dict_post_hook(forget_host_counter)
 
     def forward(self, images: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """images: (B, K, 3, H, W) uint8; vector: (B, 6) command one-hot, speed, target."""
         batch, cameras = images.shape[:2]
         pixels = images.flatten(0, 1).float() / 255.0
         if self.training:
-            generator = torch.Generator().manual_seed(int(self.augment_step))
-            self.augment_step += 1
-            gain = torch.empty(batch, 1, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
-            gain = gain.to(pixels.device)
+            gain = brightness_gains(self, batch, pixels.device).view(batch, 1, 1, 1, 1)
             pixels = (pixels.view(batch, cameras, *pixels.shape[1:]) * gain).clamp(0.0, 1.0)
             pixels = pixels.flatten(0, 1)
         features = self.encoder((pixels - PIXEL_MEAN) / PIXEL_STD).view(batch, -1)
         return self.head(torch.cat([self.squeeze(features), vector], 1)).view(batch, self.steps, 2)
+
+
+def brightness_gains(model: nn.Module, count: int, device: torch.device) -> torch.Tensor:
+    """`count` brightness gains in [0.7, 1.3] on `device`, drawn from a generator seeded with
+    the model's step counter (its `augment_step` buffer, saved with the weights: a resumed
+    training draws what an uninterrupted one would); the counter then advances by one.
+
+    The counter's value is also kept on the host (read from the buffer once, and again after
+    each `load_state_dict`: `forget_host_counter`), and the gains reach a GPU from pinned memory
+    without waiting: reading the buffer, or copying from pageable memory, made every training
+    step on a GPU wait for the one before it to finish."""
+    step = model.__dict__.get("_augment_host")
+    if step is None:
+        step = int(model.augment_step)
+    model.__dict__["_augment_host"] = step + 1
+    model.augment_step += 1
+    gains = torch.empty(count).uniform_(0.7, 1.3, generator=torch.Generator().manual_seed(step))
+    if device.type == "cuda":
+        return gains.pin_memory().to(device, non_blocking=True)
+    return gains.to(device)
+
+
+def forget_host_counter(model: nn.Module, incompatible: Any) -> None:
+    """A `load_state_dict` post-hook: the host's copy of the augmentation counter is read from
+    the loaded buffer at the next draw."""
+    del incompatible
+    model.__dict__.pop("_augment_host", None)
 
 
 def vector_features(

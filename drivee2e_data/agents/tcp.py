@@ -71,20 +71,39 @@ class TCPPolicy(nn.Module):
         self.step_out = nn.Linear(GRU_HIDDEN, 2)
         self.speed = nn.Sequential(nn.Linear(256, 64), nn.ReLU(), nn.Linear(64, 1))
         self.register_buffer("augment_step", torch.zeros((), dtype=torch.int64))
+        self.register_load_state_dict_post_hook(camera.forget_host_counter)
+        # CUDA graphs of the training step's `plan`, by input shape (`capture`); a plain dict,
+        # so neither the state dict nor `modules()` sees them
+        self._graphs: dict[tuple[int, ...], Callable[..., tuple[torch.Tensor, torch.Tensor]]] = {}
 
     def forward(
         self, images: torch.Tensor, vector: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
+        normalised = self.normalise(images)
+        graphed = self._graphs.get(tuple(normalised.shape)) if self.training else None
+        if graphed is not None:
+            return graphed(normalised, vector)
+        return self.plan(normalised, vector)
+
+    def normalise(self, images: torch.Tensor, augment: bool = True) -> torch.Tensor:
+        """`(B, K, 3, H, W)` uint8 to the trunk's input `(B * K, 3, H, W)`: scaled to [0, 1],
+        in training (with `augment`) each image times a brightness gain, normalised; in
+        channels-last memory on a GPU (the convolutions' fast layout there)."""
         batch, cameras = images.shape[:2]
         pixels = images.flatten(0, 1).float() / 255.0
-        if self.training:  # a brightness gain per image, drawn from a counter saved with it
-            generator = torch.Generator().manual_seed(int(self.augment_step))
-            self.augment_step += 1
-            gain = torch.empty(batch * cameras, 1, 1, 1).uniform_(0.7, 1.3, generator=generator)
-            pixels = (pixels * gain.to(pixels.device)).clamp(0.0, 1.0)
+        if self.training and augment:
+            gain = camera.brightness_gains(self, batch * cameras, pixels.device)
+            pixels = (pixels * gain.view(-1, 1, 1, 1)).clamp(0.0, 1.0)
         normalised = (pixels - PIXEL_MEAN) / PIXEL_STD
-        if normalised.is_cuda:  # the convolutions' fast layout there
+        if normalised.is_cuda:
             normalised = normalised.contiguous(memory_format=torch.channels_last)
+        return normalised
+
+    def plan(
+        self, normalised: torch.Tensor, vector: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The trunk's input (`normalise`) and the measurement vector to waypoints and speed."""
+        batch = len(vector)
         features = self.trunk(normalised).view(batch, -1)
         seen = self.image(features)
         hidden = self.join(torch.cat([seen, self.measurements(vector)], 1))
@@ -97,6 +116,37 @@ class TCPPolicy(nn.Module):
             point = point + self.step_out(hidden)
             waypoints.append(point)
         return torch.stack(waypoints, 1), self.speed(seen).squeeze(1)
+
+    def capture(self, images: torch.Tensor, vector: torch.Tensor) -> None:
+        """Record `plan`'s training forward and backward for inputs shaped like these as CUDA
+        graphs (call it in training mode, on the GPU, inside the training's autocast, which
+        must not cache casts); `forward` then replays them for batches of that shape, and runs
+        `plan` eagerly for any other (an epoch's last, shorter batch). A step then launches a
+        graph instead of several hundred kernels from Python, which bound the training at about
+        16 ms a step whatever its size (docs/benchmarks.md). The capture's warm-up passes
+        update the batch norms' running statistics: every buffer is put back afterwards, so the
+        training is the one it would have been without graphs, to the GPU's arithmetic."""
+        normalised = self.normalise(images, augment=False)
+        buffers = {name: value.clone() for name, value in self.named_buffers()}
+        graphed = torch.cuda.make_graphed_callables(_Plan(self), (normalised, vector))
+        with torch.no_grad():
+            for name, value in self.named_buffers():
+                value.copy_(buffers[name])
+        self._graphs[tuple(normalised.shape)] = graphed
+
+
+class _Plan(nn.Module):
+    """A policy's `plan` as a module of its own (what `make_graphed_callables` records: its
+    parameters are the policy's)."""
+
+    def __init__(self, policy: TCPPolicy) -> None:
+        super().__init__()
+        self.policy = policy
+
+    def forward(
+        self, normalised: torch.Tensor, vector: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.policy.plan(normalised, vector)
 
 
 def dataset_for(root: Path, split: str, split_name: str = "default") -> DriveE2EDataset:
@@ -131,11 +181,13 @@ def train(
     on_sample: Callable[[int], None] | None = None,
     device: str = "cpu",
     width: int = 64,
+    cuda_graphs: bool = True,
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (from `dataset_for`, or the split's feature cache of
     `FEATURES`) on `device`; returns the checkpoint. `width`: the trunk's first stage's
-    channels (64: ResNet-18). On a GPU the forward pass runs in bfloat16 autocast and the
-    trunk in channels-last memory."""
+    channels (64: ResNet-18). On a GPU the forward pass runs in bfloat16 autocast, the trunk in
+    channels-last memory, and with `cuda_graphs` each full batch's forward and backward as CUDA
+    graphs (`TCPPolicy.capture`)."""
     options = options or TrainOptions(epochs=30, batch_size=32, learning_rate=3e-4)
     full_size = camera.trainable_size(dataset, INPUT_SIZE, TCPPolicy.name)
     data = training.source(dataset, inputs, 32, on_sample)
@@ -147,8 +199,14 @@ def train(
     if gpu:
         model.trunk.to(memory_format=torch.channels_last)
     return fit(
-        model, data, _predict, checkpoint, options, header, on_epoch, device, mixed_precision=gpu
-    )
+        model, data, _predict, checkpoint, options, header, on_epoch, device,
+        mixed_precision=gpu, capture=_capture if gpu and cuda_graphs else None,
+    )  # fmt: skip
+
+
+def _capture(model: nn.Module, rows: dict[str, torch.Tensor]) -> None:
+    """`training.fit`'s capture: the policy's graphs for batches shaped like `rows`."""
+    model.capture(rows["images"], rows["vector"])
 
 
 def load(path: Path, network: bool = True) -> tuple[TCPPolicy | None, tuple[int, int]]:

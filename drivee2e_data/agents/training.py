@@ -182,14 +182,18 @@ def fit(
     on_epoch: Callable[[int, float], None] | None = None,
     device: str = "cpu",
     mixed_precision: bool = False,
+    capture: Callable[[nn.Module, dict[str, torch.Tensor]], None] | None = None,
 ) -> dict[str, Any]:
     """Train `model` on `data` (a `Rows` source, or tensors of N rows each: `y` (N, T, 2)
     targets and `mask` (N, T) among them), `predict(model, rows)` giving (B, T, 2), or that and
     an auxiliary loss to add; resumes from `checkpoint` when it holds an earlier run of the same
     options. `header` (kind and shapes) goes into the checkpoint. Batches are gathered by a
     DataLoader (workers for a cache) and moved to `device`, where the model lives; with
-    `mixed_precision` on a CUDA device the forward pass runs in bfloat16 autocast. The reported
-    loss is the waypoints' L1 alone."""
+    `mixed_precision` on a CUDA device the forward pass runs in bfloat16 autocast (casts not
+    cached, which CUDA graphs require and a single forward a step does not use). `capture(model,
+    rows)`, on a CUDA device, is given the first batch's rows in training mode inside that
+    autocast before the first epoch, for the model to record the step as CUDA graphs (TCP's).
+    The reported loss is the waypoints' L1 alone."""
     source = TensorRows(data) if isinstance(data, dict) else data
     samples = len(source)
     model.to(device)
@@ -204,7 +208,14 @@ def fit(
         state = {"epoch": saved["epoch"], "losses": saved["losses"]}
         if state["epoch"] >= options.epochs:
             return saved
-    autocast = torch.autocast("cuda", torch.bfloat16, enabled=cuda and mixed_precision)
+    autocast = torch.autocast(
+        "cuda", torch.bfloat16, enabled=cuda and mixed_precision, cache_enabled=False
+    )
+    if capture is not None and cuda and samples >= options.batch_size:
+        # before the loader starts: its pinning thread's allocations would break a capture
+        model.train()
+        with autocast:
+            capture(model, to_device(source.rows(torch.arange(options.batch_size)), device))
     order = _EpochOrder()
     workers = loader_workers(source)
     loader = torch.utils.data.DataLoader(

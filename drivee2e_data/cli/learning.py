@@ -84,6 +84,12 @@ def add_train(commands) -> None:  # type: ignore[no-untyped-def]
         help="where to train (auto: the camera models on cuda where there is one, admlp on the "
         "cpu; cuda:N picks a GPU, so several trainings run side by side)",
     )
+    train.add_argument(
+        "--no-cuda-graphs",
+        action="store_true",
+        help="tcp on a GPU: launch each step's kernels from Python instead of replaying the "
+        "step as CUDA graphs (slower; to compare the two)",
+    )
     _cache_options(train)
 
 
@@ -243,7 +249,7 @@ def run_train(args: argparse.Namespace) -> int:
     if args.model == "camera":
         trainer = functools.partial(camera.train, device=device)
     elif args.model == "tcp":
-        trainer = functools.partial(tcp.train, device=device)
+        trainer = functools.partial(tcp.train, device=device, cuda_graphs=not args.no_cuda_graphs)
     else:
         trainer = functools.partial(admlp.train, device=device)
     dataset = _features(args, args.model)

@@ -2,12 +2,13 @@
 # Issue 59's one-GPU figures at Benchmark v1's scale, on a fresh GPU host, in the background
 # (setsid) so the run goes on between device calls: TRAIN training clips and VAL val clips of
 # the canonical manifest (scripts/benchmark_subsets.py, seed 0) synthesised and collected whole
-# at 2 Hz; each model's feature caches; TCP trained EPOCHS epochs on cuda:0 with the GPU's
-# utilisation logged each second; with BASE_TAR, a short training (SHORT_EPOCHS) with that
-# version and with this one on the same cache, one after the other; AD-MLP trained on the CPU;
+# at 2 Hz; the tests that need a GPU (pytest from .whl); each model's feature caches; TCP
+# trained EPOCHS epochs on cuda:0 with the GPU's utilisation logged each second; short trainings
+# (SHORT_EPOCHS) on the same cache, one after the other: with BASE_TAR that version and this
+# one, and this one without CUDA graphs (--no-cuda-graphs); AD-MLP trained on the CPU;
 # open loop (predict, then both conventions scored) of constant velocity (twice: the first run
 # builds the val clips' scoring cache), AD-MLP and TCP; the training step's probe
-# (scripts/dev/bench_training_step.py, STEP_PROBE=0: not); TCP's closed loop twice on CLOSEDLOOP
+# (scripts/dev/bench_training_step.py, with STEP_PROBE=1); TCP's closed loop twice on CLOSEDLOOP
 # val clips (0: not), to see whether GPU runs repeat to the bit. Each step's seconds go to
 # /tmp/training/log.txt as it ends.
 #   [BASE_TAR=out/base_overlay.tar] bash scripts/dev/device_training.sh && \
@@ -38,7 +39,7 @@ SHORT_EPOCHS="${SHORT_EPOCHS:-3}"
 say() { echo "$*" >> "$LOG"; }
 if [ "${1:-}" != --run ]; then  # set the host up, then the run in a session of its own
     rm -rf "$RUN" && mkdir -p "$RUN/logs" "$RUN/openloop" "$repo"
-    cp -r scripts splits "$repo/"
+    cp -r scripts splits tests pyproject.toml "$repo/"
     start=$(date +%s)
     # shellcheck source=scripts/dev/device_env.sh
     source scripts/dev/device_env.sh  # the environment; a base version in /tmp/proj_base
@@ -79,6 +80,9 @@ run() {
     step subsets python3 "$repo/scripts/benchmark_subsets.py" "$repo/splits/synthetic-800.csv" \
         --sizes "$TRAIN" --val "$VAL" --out "$manifests" || return 1
     local manifest="$manifests/train-$TRAIN.csv"
+    # the tests that need a GPU (TCP's CUDA graphs against its eager training), first
+    (cd "$repo" && step gpu-tests python3 -m pytest -q -p no:cacheprovider -k cuda tests/test_tcp.py)
+    say "  $(tail -1 "$RUN/logs/gpu-tests.log")"
     mapfile -t clips < "$manifests/clips.txt"
     step synth drivee2e synth --out "$DATA" --clips 800 --intersections 15 --seed 0 \
         --workers "$(nproc)" --only "${clips[@]}" &&
@@ -94,12 +98,15 @@ run() {
         --epochs "$EPOCHS" --seed 0 --device cuda:0 --out "$RUN/tcp.pt"
     say "  $(grep -h "epochs in" "$RUN/logs/train-tcp.log" | tail -1)"
     busy train-tcp
-    for version in "${versions[@]}"; do  # a short training of each version on the same cache
-        local path=/tmp/proj
+    # a short training of each version on the same cache, and this one without CUDA graphs
+    for version in "${versions[@]}" eager; do
+        local path=/tmp/proj flags=()
         [ "$version" = base ] && path=/tmp/proj_base
+        [ "$version" = eager ] && flags=(--no-cuda-graphs)
         step "train-tcp-short-$version" env PYTHONPATH="$path:/tmp/site" python3 -m \
             drivee2e_data.cli train tcp "$DATA" --split train --split-name "$manifest" \
-            --epochs "$SHORT_EPOCHS" --seed 0 --device cuda:0 --out "$RUN/tcp-short-$version.pt"
+            --epochs "$SHORT_EPOCHS" --seed 0 --device cuda:0 --out "$RUN/tcp-short-$version.pt" \
+            "${flags[@]}"
         say "  $(grep -h "epochs in" "$RUN/logs/train-tcp-short-$version.log" | tail -1)"
         busy "train-tcp-short-$version"
     done
@@ -115,7 +122,7 @@ run() {
             --json "$RUN/openloop/${name}_{convention}.json"
     done
     # what bounds the training step (the feed, the step, the trunk compiled): STEP_PROBE=1
-    if [ "${STEP_PROBE:-1}" = 1 ]; then
+    if [ "${STEP_PROBE:-0}" = 1 ]; then
         step step-probe python3 "$repo/scripts/dev/bench_training_step.py" "$DATA" \
             --split-name "$manifest" --compile default reduce-overhead
         grep -h "samples/s" "$RUN/logs/step-probe.log" | sed 's/^/  /' >> "$LOG"
