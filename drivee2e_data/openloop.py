@@ -99,10 +99,18 @@ def read_predictions(
         table = pq.read_table(path)
     except Exception as error:  # pyarrow raises several types for a damaged file
         raise DriveE2EError(f"{path}: not a readable Parquet file ({error})") from None
+    return plans_of(table, dataset, str(path))
+
+
+def plans_of(
+    table: pa.Table, dataset: DriveE2EDataset | FeatureCache, source: str
+) -> dict[int, torch.Tensor]:
+    """A predictions table's plans `(T, 2)` by `dataset` index (`read_predictions`'s checks;
+    `source` names the table in errors)."""
     missing = [n for n in PREDICTION_SCHEMA.names if n not in table.column_names]
     if missing:
         raise DriveE2EError(
-            f"{path}: column {missing[0]!r} is missing; expected {', '.join(PREDICTION_SCHEMA.names)}"
+            f"{source}: column {missing[0]!r} is missing; expected {', '.join(PREDICTION_SCHEMA.names)}"
         )
     where = {sample: k for k, sample in enumerate(dataset.samples)}
     steps = dataset.horizons.future_steps
@@ -114,18 +122,20 @@ def read_predictions(
         index = where.get((scenario_id, frame))
         if index is None:
             raise DriveE2EError(
-                f"{path} row {row}: ({scenario_id!r}, frame {frame}) is no sample of split "
+                f"{source} row {row}: ({scenario_id!r}, frame {frame}) is no sample of split "
                 f"{dataset.split!r} of {dataset.manifest}"
             )
         if xs is None or ys is None or len(xs) != steps or len(ys) != steps:
             raise DriveE2EError(
-                f"{path} row {row}: plan_x_m and plan_y_m have {0 if xs is None else len(xs)} "
+                f"{source} row {row}: plan_x_m and plan_y_m have {0 if xs is None else len(xs)} "
                 f"and {0 if ys is None else len(ys)} values, expected {steps} each"
             )
         if not all(v is not None and math.isfinite(v) for v in (*xs, *ys)):
-            raise DriveE2EError(f"{path} row {row}: a planned coordinate is not a finite number")
+            raise DriveE2EError(f"{source} row {row}: a planned coordinate is not a finite number")
         if index in plans:
-            raise DriveE2EError(f"{path} row {row}: ({scenario_id!r}, frame {frame}) appears twice")
+            raise DriveE2EError(
+                f"{source} row {row}: ({scenario_id!r}, frame {frame}) appears twice"
+            )
         plans[index] = torch.tensor([xs, ys], dtype=torch.float64).T
     return plans
 

@@ -207,6 +207,38 @@ def test_cli_predict_and_score(loader_root: Path, tmp_path: Path, capsys) -> Non
     assert not (tmp_path / "one.json").exists()
 
 
+def test_openloop_plans_and_scores_in_one_process_as_predict_then_openloop(
+    loader_root: Path, tmp_path: Path, capsys
+) -> None:
+    """`openloop --model` (plans made in the same process) writes the same tables, and with
+    `--write-predictions` the same predictions file, as `predict` and then `openloop`."""
+    split = ["--split", "test"]
+    two_step = tmp_path / "two_step.parquet"
+    assert main(["predict", str(loader_root), *split, "--model", "constant-velocity",
+                 "--out", str(two_step)]) == 0  # fmt: skip
+    assert main(["openloop", str(loader_root), *split, "--predictions", str(two_step),
+                 "--convention", "stp3", "uniad", "--json", str(tmp_path / "a_{convention}.json")]) == 0  # fmt: skip
+    one_step = tmp_path / "one_step.parquet"
+    assert main(["openloop", str(loader_root), *split, "--model", "constant-velocity",
+                 "--write-predictions", str(one_step), "--convention", "stp3", "uniad",
+                 "--json", str(tmp_path / "b_{convention}.json")]) == 0  # fmt: skip
+    for convention in ("stp3", "uniad"):
+        assert (tmp_path / f"a_{convention}.json").read_bytes() == (
+            tmp_path / f"b_{convention}.json"
+        ).read_bytes()
+    assert pq.read_table(one_step).equals(pq.read_table(two_step))
+    capsys.readouterr()
+    # a checkpoint or a file to write without --model, and neither source: one error each
+    assert main(["openloop", str(loader_root), *split, "--predictions", str(two_step),
+                 "--write-predictions", str(tmp_path / "x.parquet")]) == 2  # fmt: skip
+    assert "--write-predictions goes with --model" in capsys.readouterr().err
+    assert main(["openloop", str(loader_root), *split, "--model", "admlp"]) == 2
+    assert "--model admlp needs --checkpoint" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["openloop", str(loader_root), *split])
+    assert "one of the arguments --predictions --model is required" in capsys.readouterr().err
+
+
 def _write(path: Path, rows: dict) -> Path:
     pq.write_table(pa.table(rows), path)
     return path

@@ -117,12 +117,26 @@ def add_predict(commands) -> None:  # type: ignore[no-untyped-def]
 def add_openloop(commands) -> None:  # type: ignore[no-untyped-def]
     """The `openloop` command's arguments."""
     openloop = commands.add_parser(
-        "openloop", help="score a predictions file: L2 and collision rate, per category"
+        "openloop",
+        help="score a predictions file, or a baseline's plans made in the same process: L2 and "
+        "collision rate, per category",
     )
     openloop.add_argument("data", type=Path, help="data root")
     _split_options(openloop, "val")
+    plans = openloop.add_mutually_exclusive_group(required=True)
+    plans.add_argument("--predictions", type=Path, help="Parquet (docs/loaders.md)")
+    plans.add_argument(
+        "--model",
+        choices=PLANNERS,
+        help="plan the split with this baseline first (as `predict` would, in the same "
+        "process: its start paid once)",
+    )
+    openloop.add_argument("--checkpoint", type=Path, help="with --model: its checkpoint")
     openloop.add_argument(
-        "--predictions", type=Path, required=True, help="Parquet (docs/loaders.md)"
+        "--device", default="auto", help="with --model: where its network plans (as `predict`)"
+    )
+    openloop.add_argument(
+        "--write-predictions", type=Path, default=None, help="with --model: also save its plans"
     )
     openloop.add_argument(
         "--convention",
@@ -301,6 +315,14 @@ def _planner(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run_predict(args: argparse.Namespace) -> int:
+    table = _plan(args)
+    print(f"wrote {args.out}: {table.num_rows} plans for split {args.split}")
+    return 0
+
+
+def _plan(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """`args.model`'s plans for every sample of the split, as a predictions table; written to
+    `args.out` (`predict`) or `args.write_predictions` (`openloop --model`) where given."""
     from drivee2e_data import openloop
 
     planner = _planner(args)
@@ -309,9 +331,10 @@ def run_predict(args: argparse.Namespace) -> int:
         total=len(dataset), unit="sample", desc=f"planning ({args.model})", disable=None
     ) as bar:
         table = openloop.predict(dataset, planner, bar.update)
-    openloop.write_predictions(args.out, table)
-    print(f"wrote {args.out}: {table.num_rows} plans for split {args.split}")
-    return 0
+    out = getattr(args, "out", None) or getattr(args, "write_predictions", None)
+    if out is not None:
+        openloop.write_predictions(out, table)
+    return table
 
 
 def run_openloop(args: argparse.Namespace) -> int:
@@ -323,8 +346,17 @@ def run_openloop(args: argparse.Namespace) -> int:
             f"--json {args.json}: {len(conventions)} conventions need one file each; put "
             "{convention} in the path (for example plans_{convention}.json)"
         )
+    if args.model is None and (args.checkpoint or args.write_predictions):
+        option = "--checkpoint" if args.checkpoint else "--write-predictions"
+        raise DriveE2EError(f"{option} goes with --model (plans made here), not --predictions")
+    table = _plan(args) if args.model is not None else None
     dataset = _labels_only(args) if args.no_cache else _cached(args, _scoring_spec())
-    plans = openloop.read_predictions(args.predictions, dataset)
+    if table is None:
+        plans = openloop.read_predictions(args.predictions, dataset)
+    else:
+        plans = openloop.plans_of(table, dataset, f"the plans of {args.model}")
+        if args.write_predictions is not None:
+            print(f"wrote {args.write_predictions}: {table.num_rows} plans")
     with tqdm(total=len(plans), unit="sample", desc="scoring", disable=None) as bar:
         scored = openloop.score(dataset, plans, conventions, bar.update)
     for convention, results in scored.items():

@@ -6,8 +6,9 @@
 # trained EPOCHS epochs on cuda:0 with the GPU's utilisation logged each second; short trainings
 # (SHORT_EPOCHS) on the same cache, one after the other: with BASE_TAR that version and this
 # one, and this one without CUDA graphs (--no-cuda-graphs); AD-MLP trained on the CPU;
-# open loop (predict, then both conventions scored) of constant velocity (twice: the first run
-# builds the val clips' scoring cache), AD-MLP and TCP; the training step's probe
+# open loop (predict, then both conventions scored; then both in one process, `openloop
+# --model`) of constant velocity (twice: the first run builds the val clips' scoring cache),
+# AD-MLP and TCP; the training step's probe
 # (scripts/dev/bench_training_step.py, with STEP_PROBE=1); TCP's closed loop twice on CLOSEDLOOP
 # val clips (0: not), to see whether GPU runs repeat to the bit. Each step's seconds go to
 # /tmp/training/log.txt as it ends.
@@ -81,8 +82,11 @@ run() {
         --sizes "$TRAIN" --val "$VAL" --out "$manifests" || return 1
     local manifest="$manifests/train-$TRAIN.csv"
     # the tests that need a GPU (TCP's CUDA graphs against its eager training), first
-    (cd "$repo" && step gpu-tests python3 -m pytest -q -p no:cacheprovider -k cuda tests/test_tcp.py)
-    say "  $(tail -1 "$RUN/logs/gpu-tests.log")"
+    if [ "${GPU_TESTS:-1}" = 1 ]; then
+        (cd "$repo" && step gpu-tests python3 -m pytest -q -p no:cacheprovider -k cuda \
+            tests/test_tcp.py)
+        say "  $(tail -1 "$RUN/logs/gpu-tests.log")"
+    fi
     mapfile -t clips < "$manifests/clips.txt"
     step synth drivee2e synth --out "$DATA" --clips 800 --intersections 15 --seed 0 \
         --workers "$(nproc)" --only "${clips[@]}" &&
@@ -99,7 +103,8 @@ run() {
     say "  $(grep -h "epochs in" "$RUN/logs/train-tcp.log" | tail -1)"
     busy train-tcp
     # a short training of each version on the same cache, and this one without CUDA graphs
-    for version in "${versions[@]}" eager; do
+    [ "$SHORT_EPOCHS" -gt 0 ] || versions=()
+    for version in ${versions[@]+"${versions[@]}"} $([ "$SHORT_EPOCHS" -gt 0 ] && echo eager); do
         local path=/tmp/proj flags=()
         [ "$version" = base ] && path=/tmp/proj_base
         [ "$version" = eager ] && flags=(--no-cuda-graphs)
@@ -120,6 +125,18 @@ run() {
         step "openloop-$name" drivee2e openloop "$DATA" --split val --split-name "$manifest" \
             --predictions "$RUN/openloop/$name.parquet" --convention stp3 uniad \
             --json "$RUN/openloop/${name}_{convention}.json"
+        # the same in one process (`openloop --model`): the same tables, one start
+        step "openloop-one-$name" drivee2e openloop "$DATA" --split val --split-name \
+            "$manifest" --model "$model" "${checkpoint[@]}" --convention stp3 uniad \
+            --json "$RUN/openloop/${name}_one_{convention}.json" &&
+        for convention in stp3 uniad; do
+            if cmp -s "$RUN/openloop/${name}_${convention}.json" \
+                "$RUN/openloop/${name}_one_${convention}.json"; then
+                say "  the same $convention table as predict, then openloop"
+            else
+                say "  $convention: a table unlike predict's, then openloop's"
+            fi
+        done
     done
     # what bounds the training step (the feed, the step, the trunk compiled): STEP_PROBE=1
     if [ "${STEP_PROBE:-0}" = 1 ]; then
