@@ -93,17 +93,13 @@ evaluate() {  # evaluate RUN AGENT MANIFEST WORKERS [CHECKPOINT [RECORD]]
         > "$OUT/logs/eval-$run.log" 2>&1
 }
 
-openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]: plans, then scores them (a failed
-    # plan fails the stage: called under `||`, a function runs without `set -e`)
+openloop() {  # openloop NAME MODEL MANIFEST [CHECKPOINT]: plans and scores them, one process
     local name="$1" model="$2" manifest="$3" checkpoint=()
     [ -n "${4:-}" ] && checkpoint=(--checkpoint "$4")
-    OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" predict "$DATA" --split val \
-        --split-name "$manifest" --model "$model" "${checkpoint[@]}" \
-        --out "$OUT/openloop/$name.parquet" > "$OUT/logs/openloop-$name.log" 2>&1 &&
     OMP_NUM_THREADS="$CPU_THREADS" "$DRIVEE2E" openloop "$DATA" --split val \
-        --split-name "$manifest" --predictions "$OUT/openloop/$name.parquet" \
-        --convention stp3 uniad --json "$OUT/openloop/${name}_{convention}.json" \
-        >> "$OUT/logs/openloop-$name.log" 2>&1
+        --split-name "$manifest" --model "$model" "${checkpoint[@]}" \
+        --write-predictions "$OUT/openloop/$name.parquet" --convention stp3 uniad \
+        --json "$OUT/openloop/${name}_{convention}.json" > "$OUT/logs/openloop-$name.log" 2>&1
 }
 
 # The references first: constant velocity's open loop also builds the val clips' scoring cache

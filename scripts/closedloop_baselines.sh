@@ -17,9 +17,8 @@ OUT="$DATA/results/openloop"
 DRIVEE2E="${DRIVEE2E:-.venv/bin/drivee2e}"
 [ -f "$OUT/admlp_${SPLIT}_stp3.json" ] || bash scripts/openloop_baselines.sh "$DATA" "$SPLIT"
 "$DRIVEE2E" train camera "$DATA" --split train --epochs "$EPOCHS" --out "$OUT/camera.pt"
-"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model camera --checkpoint "$OUT/camera.pt" \
-    --out "$OUT/camera_$SPLIT.parquet"
-"$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/camera_$SPLIT.parquet" \
+"$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --model camera --checkpoint "$OUT/camera.pt" \
+    --write-predictions "$OUT/camera_$SPLIT.parquet" \
     --convention stp3 uniad --json "$OUT/camera_${SPLIT}_{convention}.json" > /dev/null
 for agent in expert constant-velocity admlp camera; do
     CHECKPOINT=()

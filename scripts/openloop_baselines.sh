@@ -14,10 +14,11 @@ DRIVEE2E="${DRIVEE2E:-.venv/bin/drivee2e}"
 mkdir -p "$OUT"
 [ -f "$DATA/splits/default.csv" ] || "$DRIVEE2E" split "$DATA"
 "$DRIVEE2E" train admlp "$DATA" --split train --epochs "$EPOCHS" --out "$OUT/admlp.pt"
-"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model constant-velocity --out "$OUT/constant-velocity_$SPLIT.parquet"
-"$DRIVEE2E" predict "$DATA" --split "$SPLIT" --model admlp --checkpoint "$OUT/admlp.pt" --out "$OUT/admlp_$SPLIT.parquet"
-for model in constant-velocity admlp; do
+for model in constant-velocity admlp; do  # plans made and scored in one process each
     echo "== $model on $SPLIT (stp3, uniad)"
-    "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --predictions "$OUT/${model}_$SPLIT.parquet" \
+    CHECKPOINT=()
+    [ "$model" = admlp ] && CHECKPOINT=(--checkpoint "$OUT/admlp.pt")
+    "$DRIVEE2E" openloop "$DATA" --split "$SPLIT" --model "$model" "${CHECKPOINT[@]}" \
+        --write-predictions "$OUT/${model}_$SPLIT.parquet" \
         --convention stp3 uniad --json "$OUT/${model}_${SPLIT}_{convention}.json"
 done
