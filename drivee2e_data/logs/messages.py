@@ -24,6 +24,7 @@ from drivee2e_data.sensors.lidar import LidarSweep
 from drivee2e_data.sensors.radar import RadarReturns
 from drivee2e_data.sensors.rig import Camera
 from drivee2e_data.sensors.suite import BoxAnnotation, SensorFrame
+from drivee2e_data.sim.conditions import Exposure
 
 _NUMERIC = {
     np.dtype("<f4"): PackedElementField.FLOAT32,
@@ -139,6 +140,12 @@ def location_fix(t_ns: int, frame: SensorFrame, motion: EgoMotion) -> LocationFi
     )
     fix.velocity.x, fix.velocity.y = motion.vx_mps[index], motion.vy_mps[index]
     return _stamp(fix, t_ns)
+
+
+def camera_exposure(t_ns: int, camera: str, exposed: Exposure) -> schemas.CameraExposure:
+    return _stamp(
+        schemas.CameraExposure(frame_id=camera, gain=exposed.gain, metered=exposed.metered), t_ns
+    )
 
 
 def imu_message(t_ns: int, frame: SensorFrame) -> schemas.Imu:

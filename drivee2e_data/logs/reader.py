@@ -250,7 +250,9 @@ class LogReader:
         """Every state topic once at every frame, every sensor topic once at every sensor frame
         (and never between), `/map` once at the first, and the summary's counts agreeing;
         raises `LogFormatError` naming the first gap."""
-        expected = set(topics.per_frame_topics(self.cameras))
+        exposure = {topics.exposure_topic(c) for c in self.cameras}
+        recorded = {channel.topic for channel in self.summary.channels.values()}
+        expected = set(topics.per_frame_topics(self.cameras, bool(exposure & recorded)))
         expected |= {
             topics.camera_label_topic(camera, kind)
             for camera in self.cameras

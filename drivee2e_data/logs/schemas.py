@@ -1,5 +1,5 @@
 """The project's protobuf messages, for what no Foxglove schema fits: IMU, ego state, box
-annotations and traffic lights (package `drivee2e`).
+annotations, traffic lights and the cameras' exposure (package `drivee2e`).
 
 They are declared here as descriptors rather than compiled from a .proto file, so no protoc step
 is needed; every log embeds their FileDescriptorSet, so any protobuf reader decodes them without
@@ -100,6 +100,13 @@ MESSAGES: dict[str, tuple[tuple[str, str, bool], ...]] = {
         # the signal that binds the ego at this frame ('' for none: `binding.binding_signals`)
         ("ego_signal_id", "string", False),
     ),
+    "CameraExposure": (
+        ("timestamp", ".google.protobuf.Timestamp", False),
+        ("frame_id", "string", False),  # the camera
+        # the gain on the drawn image's 8-bit values before the sensor's noise (1: as drawn)
+        ("gain", "double", False),
+        ("metered", "double", False),  # the mean grey (luma, 0-255) the camera's meter read
+    ),
 }
 # high-level command, as nuScenes-trained planners read it (ego_fut_cmd: right, left, straight)
 COMMANDS = ("COMMAND_UNKNOWN", "RIGHT", "LEFT", "STRAIGHT")
@@ -150,3 +157,4 @@ Object = _CLASSES["Object"]
 ObjectAnnotations = _CLASSES["ObjectAnnotations"]
 TrafficLight = _CLASSES["TrafficLight"]
 TrafficLights = _CLASSES["TrafficLights"]
+CameraExposure = _CLASSES["CameraExposure"]

@@ -53,6 +53,11 @@ def camera_info_topic(camera: str) -> str:
     return f"/{camera}/camera_info"
 
 
+def exposure_topic(camera: str) -> str:
+    """`/CAM_FRONT/exposure`: the camera's exposure at each sensor frame (look 10 on)."""
+    return f"/{camera}/exposure"
+
+
 def radar_topic(radar: str) -> str:
     return f"/{radar}"
 
@@ -71,11 +76,13 @@ def sensor_every(sensor_hz: int) -> int:
     return FRAME_RATE_HZ // sensor_hz
 
 
-def per_frame_topics(cameras: tuple[str, ...] = CAMERAS) -> tuple[str, ...]:
-    """Every topic a log carries at every frame, given the cameras it records."""
+def per_frame_topics(cameras: tuple[str, ...] = CAMERAS, exposure: bool = True) -> tuple[str, ...]:
+    """Every topic a log carries at every frame, given the cameras it records (and whether it
+    records their exposure: logs of looks before 10 do not)."""
     return (
         *(image_topic(c) for c in cameras),
         *(camera_info_topic(c) for c in cameras),
+        *(exposure_topic(c) for c in cameras if exposure),
         LIDAR,
         *(radar_topic(r) for r in RADARS),
         TF,

@@ -64,6 +64,7 @@ def log_channels(rig: Rig, camera_label_kinds: tuple[str, ...] = ()) -> ChannelT
             *((topics.radar_topic(r.name), PointCloud) for r in rig.radars),
             (topics.MAP, SceneUpdate),
             *((topics.camera_info_topic(c), CameraCalibration) for c in cameras),
+            *((topics.exposure_topic(c), schemas.CameraExposure) for c in cameras),
             (topics.TF, FrameTransforms),
             (topics.GNSS, LocationFix),
             (topics.IMU, schemas.Imu),
@@ -209,6 +210,11 @@ class FrameEncoder:
             put(topics.MAP, messages.map_scene(t, self.intersection_map))
         for camera in self.rig.cameras:
             put(topics.camera_info_topic(camera.name), messages.camera_calibration(t, camera))
+        for camera in self.rig.cameras:
+            put(
+                topics.exposure_topic(camera.name),
+                messages.camera_exposure(t, camera.name, frame.exposures[camera.name]),
+            )
         put(topics.TF, messages.frame_transforms(t, frame.ego_to_world, self.sensors))
         put(topics.GNSS, messages.location_fix(t, frame, self.motion))
         put(topics.IMU, messages.imu_message(t, frame))

@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
-from drivee2e_data.sim.conditions import post_process, reduced_sensor_effects
+from drivee2e_data.sim.conditions import Exposure, exposure, post_process, reduced_sensor_effects
 from drivee2e_data.sim.gl_readback import bgra_under
 from drivee2e_data.sim.world import World
 
@@ -112,15 +112,29 @@ def has_headlights(camera: Camera) -> bool:
     return camera.name == "CAM_FRONT"
 
 
-def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.uint8]:
-    """The view's RGB at the camera's size under the clip's weather and light, its noise seeded
-    by scenario, frame and camera (the same image however often the frame is made); headlights
-    on the front camera. The weather is applied as drawn, before resizing (fewer pixels); the
-    GL renderer's shaders draw fog, wet roads and night light themselves, so its images get
-    only the rain's streaks and the low-light noise here."""
+def camera_exposure(world: World, view: CameraFrame) -> Exposure:
+    """The camera's auto-exposure for this view, metered on the image as drawn
+    (`conditions.exposure`; the CPU, GPU and closed-loop paths all meter it here). pybullet's
+    renderers (look 1) keep their images as drawn: metered, gain 1."""
+    exposed = exposure(view.rgb, world.lighting)
+    if world.renderer != "gl":
+        return Exposure(1.0, exposed.metered)
+    return exposed
+
+
+def with_conditions(
+    world: World, view: CameraFrame, frame: int, exposed: Exposure | None = None
+) -> NDArray[np.uint8]:
+    """The view's RGB at the camera's size under the clip's weather and light, exposed as the
+    camera meters it (`exposed`, else `camera_exposure`), its noise seeded by scenario, frame
+    and camera (the same image however often the frame is made); headlights on the front
+    camera. The weather is applied as drawn, before resizing (fewer pixels); the GL renderer's
+    shaders draw fog, wet roads and night light themselves, so its images get only the
+    exposure, the rain's streaks and the low-light noise here."""
     import cv2
 
     scenario = world.scenario
+    exposed = exposed or camera_exposure(world, view)
     rgb = post_process(
         view.rgb,
         view.depth_m,
@@ -129,6 +143,7 @@ def with_conditions(world: World, view: CameraFrame, frame: int) -> NDArray[np.u
         noise_seed(scenario.scenario_id, frame, view.camera),
         headlights=has_headlights(view.camera),
         shaded=world.renderer == "gl",
+        gain=exposed.gain,
     )
     size = (view.camera.width, view.camera.height)
     if rgb.shape[1::-1] == size:
@@ -141,7 +156,8 @@ def with_conditions_reduced(
 ) -> NDArray[np.uint8]:
     """The view, drawn by the GL renderer smaller than a camera of `full_size` (width, height),
     under the clip's weather and light as that camera's image would show after an area
-    reduction to the drawn size: the low-light noise and the rain's streaks made at the full
+    reduction to the drawn size (its exposure metered on the smaller view, which samples the
+    same places): the low-light noise and the rain's streaks made at the full
     size with the same seed as collection (`with_conditions`) and averaged over each drawn
     pixel (`conditions.reduced_sensor_effects`). The closed-loop observer's cheap path: what a
     model reading images at a fraction of the logged size sees, without drawing, weathering,
@@ -155,6 +171,7 @@ def with_conditions_reduced(
         world.lighting,
         noise_seed(scenario.scenario_id, frame, view.camera),
         (full_size[1], full_size[0]),
+        camera_exposure(world, view).gain,
     )
 
 

@@ -14,6 +14,7 @@ import sys
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sensors.camera import CameraFrame, encode_jpeg, has_headlights, noise_seed
 from drivee2e_data.sim import conditions_torch
+from drivee2e_data.sim.conditions import Exposure
 from drivee2e_data.sim.gl_readback import contiguous_rgb
 from drivee2e_data.sim.world import World
 
@@ -55,21 +56,25 @@ def cuda_started() -> bool:
     return torch is not None and bool(torch.cuda.is_initialized())
 
 
-def finish(world: World, views: list[CameraFrame], frame: int, device: str) -> list:
-    """Each view's RGB at its camera's size under the clip's weather and light, as (3, H, W)
-    uint8 tensors on `device`; the seeds and headlights of `camera.with_conditions`."""
+def finish(
+    world: World, views: list[CameraFrame], frame: int, device: str, exposures: list[Exposure]
+) -> list:
+    """Each view's RGB at its camera's size under the clip's weather and light, exposed by its
+    `exposures` (`camera.camera_exposure`, metered on the host), as (3, H, W) uint8 tensors on
+    `device`; the seeds and headlights of `camera.with_conditions`."""
     import torch
     import torch.nn.functional as functional
 
     scenario = world.scenario
     images = []
-    for view in views:
+    for view, exposed in zip(views, exposures, strict=True):
         rgb = torch.from_numpy(contiguous_rgb(view.rgb)).to(device, non_blocking=True)
         depth = torch.from_numpy(view.depth_m).to(device, non_blocking=True)
         image = conditions_torch.post_process(
             rgb, depth, scenario.conditions, world.lighting,
             noise_seed(scenario.scenario_id, frame, view.camera),
             headlights=has_headlights(view.camera), shaded=world.renderer == "gl",
+            gain=exposed.gain,
         )  # fmt: skip
         chw = image.permute(2, 0, 1)
         size = (view.camera.height, view.camera.width)

@@ -28,6 +28,7 @@ from drivee2e_data.sensors import (
 )
 from drivee2e_data.sensors.camera import (
     CameraFrame,
+    camera_exposure,
     drawn_view,
     encode_jpeg,
     render,
@@ -37,6 +38,7 @@ from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sensors.imu_gnss import enu_to_wgs84, imu
 from drivee2e_data.sensors.rig import Rig, default_rig
+from drivee2e_data.sim.conditions import Exposure
 from drivee2e_data.sim.world import World
 
 STAGES = ("render", "post_process", "jpeg", "labels", "lidar", "radar", "annotate", "bev")
@@ -102,6 +104,8 @@ class SensorFrame:
     seconds: dict[str, float] = field(default_factory=dict)  # wall time per stage
     # camera name -> label kind -> PNG bytes (with SuiteOptions.camera_labels)
     camera_labels: dict[str, dict[str, bytes]] = field(default_factory=dict)
+    # camera name -> its exposure at this frame (`conditions.exposure`), logged beside its image
+    exposures: dict[str, Exposure] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,7 @@ class SensorSuite:
         world.set_time(frame)
         views: list[CameraFrame] = []
         jpeg: dict[str, bytes] = {}
+        exposures: dict[str, Exposure] = {}
         mask = self.label_tables is not None or self.options.visibility == "mask"
         labels: dict[str, dict[str, bytes]] = {}
         on_cpu = self.options.post_process == "cpu"
@@ -195,9 +200,11 @@ class SensorSuite:
             with _timed(seconds, "render"):
                 depth_at = None if pixels[k] is None else pixels[k].texels
                 view = render(world, camera, ego_to_world, mask=mask, depth_at=depth_at)
+            with _timed(seconds, "post_process"):
+                exposures[camera.name] = camera_exposure(world, view)
             if on_cpu:
                 with _timed(seconds, "post_process"):
-                    rgb = with_conditions(world, view, frame)
+                    rgb = with_conditions(world, view, frame, exposures[camera.name])
                 with _timed(seconds, "jpeg"):
                     jpeg[camera.name] = encode_jpeg(rgb, self.options.jpeg_quality)
             if self.label_tables is not None and view.mask is not None:
@@ -212,7 +219,9 @@ class SensorSuite:
             views.append(view)
         if not on_cpu:  # the six images as one batch on the GPU
             with _timed(seconds, "post_process"):
-                images = camera_gpu.finish(world, views, frame, self.options.post_process)
+                images = camera_gpu.finish(
+                    world, views, frame, self.options.post_process, list(exposures.values())
+                )
             with _timed(seconds, "jpeg"):
                 encoded = camera_gpu.encode(images, self.options.jpeg_quality)
             jpeg = {view.camera.name: data for view, data in zip(views, encoded, strict=True)}
@@ -272,6 +281,7 @@ class SensorSuite:
             bev_jpeg=bev_jpeg,
             seconds=seconds,
             camera_labels=labels,
+            exposures=exposures,
         )
 
     def _to_annotate(

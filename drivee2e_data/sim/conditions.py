@@ -34,6 +34,13 @@ RAIN_STREAKS = 180
 RAIN_OPACITY = 0.35
 RAIN_RGB = 220  # the streaks' grey level
 BLEND_EPSILON = 1e-5  # OpenCV's blendLinear divides by w1 + w2 + 1e-5
+# Each camera's auto-exposure (`exposure`): the mean grey level (luma, 0-255) it holds a drawn
+# image within by day, the range of its gain, and how many columns the meter samples across
+EXPOSURE_BAND = (80.0, 100.0)
+EXPOSURE_AIM = (82.0, 98.0)  # where it brings an image from outside the band
+EXPOSURE_GAINS = (0.5, 3.0)
+METER_COLUMNS = 200
+LUMA = (0.299, 0.587, 0.114)  # ITU-R BT.601, as OpenCV's grey conversion
 
 
 @dataclass(frozen=True)
@@ -63,6 +70,73 @@ def lighting(conditions: Conditions, origin: GeoOrigin) -> Lighting:
     return Lighting(direction, colour, 0.75 if overcast else 0.55, 0.3 if overcast else 0.6, False)
 
 
+@dataclass(frozen=True)
+class Exposure:
+    """A camera's exposure at one frame: the gain on the drawn image's 8-bit values (before the
+    sensor's noise and the rain's streaks; 1: as drawn) and the mean grey its meter read."""
+
+    gain: float
+    metered: float
+
+
+UNEXPOSED = Exposure(1.0, float("nan"))  # an image taken as drawn, unmetered
+
+
+def meter(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """The grey levels (luma) the exposure meter reads of an image: a grid of about
+    `METER_COLUMNS` pixels across, the same places of the view whatever size it is drawn at."""
+    step = max(1, round(rgb.shape[1] / METER_COLUMNS))
+    sample = np.asarray(rgb[step // 2 :: step, step // 2 :: step], dtype=np.float32)
+    return sample @ np.asarray(LUMA, dtype=np.float32)
+
+
+def exposure(rgb: NDArray[np.uint8], light: Lighting) -> Exposure:
+    """A camera's auto-exposure for a drawn image: it meters the image's mean grey and, where
+    that lies outside `EXPOSURE_BAND`, sets the gain that brings the mean just inside the
+    band's nearer edge (`EXPOSURE_AIM`, counting the levels that saturate at 255), within
+    `EXPOSURE_GAINS`; inside the band the image stays as drawn (a tolerance band, as cameras
+    hold one against hunting; a view crossing its edge steps by 2 levels). At night
+    the gain only ever lowers a too-bright image: real night stays dark.
+
+    Memoryless: the gain is a function of the frame's own image, so a frame's pixels do not
+    depend on which frames were collected before it (segments, `--sensor-hz`, closed loop). A
+    camera's AE settles in a few tenths of a second, under the 0.5 s between 2 Hz keyframes;
+    the views change smoothly, and so does the gain (docs/twins.md measures it frame to
+    frame)."""
+    grey = meter(rgb)
+    metered = float(grey.mean())
+    low, high = EXPOSURE_BAND
+    if metered > high:
+        want = EXPOSURE_AIM[1]
+    elif metered < low and not light.night and metered > 0.0:
+        want = EXPOSURE_AIM[0]
+    else:
+        return Exposure(1.0, metered)
+    least, most = EXPOSURE_GAINS
+    gain = float(np.clip(want / metered, least, most))
+    if gain > 1.0 and grey.max() * gain > 255.0:
+        # levels that saturate add less than their share: bisect for the gain that reaches
+        # `want` counting them (the mean is monotone in the gain), up to the range's top
+        low_gain, high_gain = gain, most
+        for _ in range(24):
+            middle = 0.5 * (low_gain + high_gain)
+            if float(np.minimum(grey * np.float32(middle), 255.0).mean()) < want:
+                low_gain = middle
+            else:
+                high_gain = middle
+        gain = high_gain
+    return Exposure(gain, metered)
+
+
+def expose(rgb: NDArray[np.uint8], gain: float) -> NDArray[np.uint8]:
+    """An image times its exposure's gain, rounded and saturated in 8 bits (itself at 1)."""
+    if gain == 1.0:
+        return rgb
+    import cv2
+
+    return cv2.convertScaleAbs(contiguous_rgb(rgb), alpha=gain)
+
+
 def post_process(
     rgb: NDArray[np.uint8],
     depth_m: NDArray[np.float32] | None,
@@ -71,23 +145,25 @@ def post_process(
     seed: int,
     headlights: bool = False,
     shaded: bool = False,
+    gain: float = 1.0,
 ) -> NDArray[np.uint8]:
     """The weather and light of `conditions` applied to an image with its metric depth; with
     `shaded` (the GL renderer drew fog, wet surfaces and night light already), only the rain's
-    streaks and the low-light sensor noise, and no depth is needed (None).
+    streaks and the low-light sensor noise, and no depth is needed (None). `gain`: the
+    camera's exposure (`exposure`), applied to the scene's light before the sensor's noise.
 
     By day the work stays in 8 bits with OpenCV's fused operations (a 1600x900 image takes a
     few milliseconds); night, with its gain, headlights and noise, goes through floats."""
     import cv2
 
     if shaded:
-        return _sensor_effects(rgb, conditions, light, seed)
+        return _sensor_effects(expose(rgb, gain), conditions, light, seed)
     if depth_m is None:
         raise ValueError("the weather of an unshaded image needs its depth image")
     visibility = VISIBILITY_M[conditions.weather]
     wet = conditions.weather in (Weather.RAIN, Weather.WET)
     if visibility is None and not wet and not light.night:
-        return rgb  # clear air by day: the render as is
+        return expose(rgb, gain)  # clear air by day: the render as is, exposed
     rng = np.random.default_rng(seed)
     image = contiguous_rgb(rgb)
     if wet:
@@ -104,6 +180,7 @@ def post_process(
         fog_rgb = np.round(FOG_RGB * (NIGHT_GAIN if light.night else 1.0)).astype(np.uint8)
         fog = _uniform_image(image.shape, tuple(fog_rgb.tolist()))
         image = cv2.blendLinear(image, fog, transmission, 1.0 - transmission)
+    image = expose(image, gain)
     if light.night:
         night = image.astype(np.float32)
         night *= NIGHT_GAIN
@@ -317,16 +394,19 @@ def reduced_sensor_effects(
     light: Lighting,
     seed: int,
     full_shape: tuple[int, int],
+    gain: float = 1.0,
 ) -> NDArray[np.uint8]:
     """`_sensor_effects` for an image drawn smaller than the camera's `full_shape` (rows,
-    columns), as the full image would show after an area reduction to `rgb`'s size: the same
-    noise and the same streaks (the same draws of `seed`'s generator) made at the full size and
-    averaged over each drawn pixel's area, then added and blended as there. What the full image
-    clips at 0 or 255 before averaging is not clipped here: a difference below a level."""
+    columns), as the full image would show after an area reduction to `rgb`'s size: exposed by
+    `gain`, then the same noise and the same streaks (the same draws of `seed`'s generator)
+    made at the full size and averaged over each drawn pixel's area, then added and blended as
+    there. What the full image clips at 0 or 255 before averaging is not clipped here: a
+    difference below a level."""
     import cv2
 
     night = light.night
     rain = conditions.weather == Weather.RAIN
+    rgb = expose(rgb, gain)
     if not night and not rain:
         return rgb
     rng = np.random.default_rng(seed)

@@ -30,17 +30,18 @@ from drivee2e_data.sim.conditions import (
 
 
 def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: int,
-                 headlights: bool = False, shaded: bool = False):  # fmt: skip
+                 headlights: bool = False, shaded: bool = False, gain: float = 1.0):  # fmt: skip
     """`rgb` (H, W, 3) uint8 and `depth_m` (H, W) float32 tensors on one device -> (H, W, 3)
     uint8 on that device, under the weather and light of `conditions`; with `shaded` (the GL
     renderer drew them), only the rain's streaks and the low-light noise (as
-    `conditions.post_process`)."""
+    `conditions.post_process`); `gain`, the camera's exposure, before the noise."""
     import torch
 
     visibility = None if shaded else VISIBILITY_M[conditions.weather]
     wet = not shaded and conditions.weather in (Weather.RAIN, Weather.WET)
-    if visibility is None and not wet and not light.night:
-        return rgb
+    rain = conditions.weather == Weather.RAIN
+    if visibility is None and not wet and not light.night and not rain:
+        return _expose(rgb, gain)
     rng = np.random.default_rng(seed)
     image = rgb
     if wet:
@@ -54,6 +55,7 @@ def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: in
         fog_rgb = np.round(FOG_RGB * (NIGHT_GAIN if light.night else 1.0)).astype(np.float32)
         fog = torch.as_tensor(fog_rgb, device=image.device)
         image = _blend(image, fog, transmission)
+    image = _expose(image, gain)
     if light.night:
         night = image.float() * (1.0 if shaded else NIGHT_GAIN)
         if headlights and not shaded:
@@ -72,6 +74,13 @@ def post_process(rgb, depth_m, conditions: Conditions, light: Lighting, seed: in
             image, torch.tensor(float(RAIN_RGB), device=image.device), 1.0 - streaks[..., None]
         )
     return image
+
+
+def _expose(image, gain: float):
+    """`conditions.expose`: times the gain, rounded (half to even, as OpenCV) and saturated."""
+    if gain == 1.0:
+        return image
+    return _round_to_uint8(image.float() * gain)
 
 
 def _blend(image, colour, weight):

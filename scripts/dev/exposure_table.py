@@ -1,16 +1,20 @@
-"""How bright the logged cameras are: the mean (and median) grey level of one camera's JPEGs per
-clip, then per time of day, with each clip's weather and the exposure gain its log records.
+"""How bright the logged cameras are: one camera's mean grey level (the JPEG decoded to grey)
+at every sensor frame of each clip, with its exposure as logged (`/CAM_*/exposure`, look 10 on:
+the gain and what the meter read), per clip and per time of day; and how much the gain moves
+from one sensor frame to the next (flicker), in stops (log2 of the ratio).
 
-    python scripts/dev/exposure_table.py DATA [--camera CAM_FRONT] [--markdown]
+    python scripts/dev/exposure_table.py DATA [--camera CAM_FRONT]
 
-DATA holds collected logs (`drivee2e synth --clips 16 --seed 0`, curated, collected); every
-sensor frame of each log is read. Prints one row per clip and one per time of day (the clips'
-means: their range and their mean).
+DATA holds collected logs (`drivee2e synth --clips 16 --seed 0`, then `drivee2e collect DATA
+--max-frames 20`). The per-time-of-day table is docs/twins.md's: the range of the frames' means,
+the range of the clips' means, and the gains.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 from collections import defaultdict
 from pathlib import Path
 
@@ -22,23 +26,20 @@ from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.scenario import TimeOfDay
 
 
-def clip_brightness(path: Path, camera: str) -> tuple[dict, float, float, str]:
-    """(conditions, mean grey, median grey, exposure as logged) of one log's camera."""
-    topic = topics.image_topic(camera)
-    means, medians = [], []
+def clip_frames(path: Path, camera: str) -> tuple[dict, list[float], list[float]]:
+    """(conditions, each sensor frame's mean grey, each frame's logged gain) of one log's
+    camera; gains are 1 for logs without the exposure topic (looks before 10)."""
+    image, exposure = topics.image_topic(camera), topics.exposure_topic(camera)
+    means, gains = [], []
     with LogReader(path) as log:
+        recorded = {channel.topic for channel in log.summary.channels.values()}
+        wanted = [image, exposure] if exposure in recorded else [image]
         for frame in log.sensor_frames:
-            data = log.frame(frame, [topic])[topic].data
-            grey = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-            means.append(float(grey.mean()))
-            medians.append(float(np.median(grey)))
-        exposure = log.collection.get("camera_exposure", "-")
-        return (
-            log.scenario_meta["conditions"],
-            float(np.mean(means)),
-            float(np.mean(medians)),
-            exposure,
-        )
+            messages = log.frame(frame, wanted)
+            data = np.frombuffer(messages[image].data, np.uint8)
+            means.append(float(cv2.imdecode(data, cv2.IMREAD_GRAYSCALE).mean()))
+            gains.append(messages[exposure].gain if exposure in messages else 1.0)
+        return log.scenario_meta["conditions"], means, gains
 
 
 def main() -> None:
@@ -46,20 +47,32 @@ def main() -> None:
     parser.add_argument("data", type=Path)
     parser.add_argument("--camera", default="CAM_FRONT")
     args = parser.parse_args()
-    by_time: dict[str, list[float]] = defaultdict(list)
-    print(f"{'clip':<18} {'time of day':<14} {'weather':<9} {'mean':>6} {'median':>7} exposure")
+    frames: dict[str, list[float]] = defaultdict(list)
+    clips: dict[str, list[float]] = defaultdict(list)
+    gains: dict[str, list[float]] = defaultdict(list)
+    steps: list[float] = []  # |log2 gain ratio| between consecutive sensor frames
+    print(f"{'clip':<18} {'time of day':<14} {'weather':<9} {'mean':>6} {'frames':>9} gain")
     for path in sorted((args.data / "logs").glob("*.mcap")):
-        conditions, mean, median, exposure = clip_brightness(path, args.camera)
+        conditions, means, clip_gains = clip_frames(path, args.camera)
         time_of_day = conditions["time_of_day"]
-        by_time[time_of_day].append(mean)
-        print(f"{path.stem:<18} {time_of_day:<14} {conditions['weather']:<9} {mean:6.1f} "
-              f"{median:7.1f} {exposure}")  # fmt: skip
-    print(f"\n| time of day | clips | {args.camera} mean grey: range | mean |\n|---|---|---|---|")
+        frames[time_of_day] += means
+        clips[time_of_day].append(float(np.mean(means)))
+        gains[time_of_day] += clip_gains
+        steps += [abs(math.log2(b / a)) for a, b in itertools.pairwise(clip_gains)]
+        print(f"{path.stem:<18} {time_of_day:<14} {conditions['weather']:<9} "
+              f"{np.mean(means):6.1f} {min(means):4.0f}-{max(means):<4.0f} "
+              f"{min(clip_gains):.2f}-{max(clip_gains):.2f}")  # fmt: skip
+    print(f"\n| time of day | clips | {args.camera} frames' mean grey | clips' means | gain |")
+    print("|---|---|---|---|---|")
     for time_of_day in TimeOfDay:
-        values = by_time.get(time_of_day.value)
-        if values:
-            print(f"| {time_of_day.value} | {len(values)} | {min(values):.0f}-{max(values):.0f} "
-                  f"| {np.mean(values):.0f} |")  # fmt: skip
+        if time_of_day.value in frames:
+            f, c, g = frames[time_of_day.value], clips[time_of_day.value], gains[time_of_day.value]
+            print(f"| {time_of_day.value} | {len(c)} | {min(f):.0f}-{max(f):.0f} | "
+                  f"{min(c):.0f}-{max(c):.0f} | {min(g):.2f}-{max(g):.2f} |")  # fmt: skip
+    if steps:
+        print(f"\nthe gain from one sensor frame to the next: median {np.median(steps):.3f}, "
+              f"95th percentile {np.percentile(steps, 95):.3f}, max {max(steps):.3f} stops "
+              f"({len(steps)} steps)")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -28,8 +28,10 @@ __all__ = ["LOOK_VERSION", "Animation", "Light", "Material", "ModelMesh", "agent
 # obstacles as models (cones, barrels, bollards, barriers, signs: `sim/obstacles.py`), the
 # other kinds grey boxes instead of orange ones; 9: generated buildings farther out (up to
 # 180 m from the junction) where a map's roads leave no room for them nearer
-# (`scenery.BUILDING_REACHES_M`: nuScenes maps).
-LOOK_VERSION = 9
+# (`scenery.BUILDING_REACHES_M`: nuScenes maps); 10: each camera's auto-exposure
+# (`conditions.exposure`: a drawn image's mean grey held within 80-100 of 255 by day), its gain
+# logged per frame on `/CAM_*/exposure`.
+LOOK_VERSION = 10
 STATURE_RANGE_M = (1.52, 1.70)  # pedestrians' heights, inside the 1.72 m blueprint box
 BUILD_RANGE = (0.85, 1.15)
 
