@@ -95,14 +95,19 @@ def test_validation_passes_and_the_cli_lists_logs(collected_root: Path, capsys):
     assert "2 logs" in out and out.count("valid") == 2
 
 
-def _copy_without(source: Path, target: Path, topic: str, frame: int) -> None:
-    """Rewrite a log, leaving out `topic`'s message at `frame` (counted from the first)."""
+def _copy_without(
+    source: Path, target: Path, topic: str, frame: int, drop_topics=lambda topic: False
+) -> None:  # type: ignore[no-untyped-def]
+    """Rewrite a log, leaving out `topic`'s message at `frame` (counted from the first), and
+    every topic `drop_topics` names (channels and all)."""
     with open(source, "rb") as stream, open(target, "wb") as out:
         reader = make_reader(stream)
         writer = Writer(out)
         writer.start()
         schemas, channels, times = {}, {}, []
         for schema, channel, message in reader.iter_messages(log_time_order=True):
+            if drop_topics(channel.topic):
+                continue
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(
                     schema.name, schema.encoding, schema.data
@@ -130,6 +135,50 @@ def test_a_missing_message_is_named_by_topic_and_frame(collected_root: Path, tmp
         log.validate()
     message = str(caught.value)
     assert "broken.mcap" in message and "/LIDAR_TOP" in message and "frame 3" in message
+
+
+def test_each_cameras_exposure_is_logged_beside_its_image(collected_root: Path, tmp_path: Path):
+    """Every sensor frame logs each camera's exposure, and the image shows it: as drawn at gain
+    1 (its mean grey the metered one), else just inside the band (this clip's overcast dawn
+    raises every camera; the back ones reach the gain's limit); a log of an older look, without
+    the topic, still validates, and a missing exposure message is named."""
+    import cv2
+
+    from drivee2e_data.sim.conditions import EXPOSURE_AIM
+
+    path = _log(collected_root)
+    gains: list[float] = []
+    with LogReader(path) as log:
+        for frame in log.sensor_frames[:3]:
+            for camera in log.cameras:
+                wanted = [topics.image_topic(camera), topics.exposure_topic(camera)]
+                messages = log.frame(frame, wanted)
+                exposed = messages[topics.exposure_topic(camera)]
+                assert exposed.frame_id == camera and 0.5 <= exposed.gain <= 3.0
+                image = cv2.imdecode(
+                    np.frombuffer(messages[topics.image_topic(camera)].data, np.uint8),
+                    cv2.IMREAD_GRAYSCALE,
+                )
+                mean = float(image.mean())
+                gains.append(exposed.gain)
+                if exposed.gain == 1.0:  # as drawn: the meter read the image's mean
+                    assert abs(mean - exposed.metered) < 2.0, (frame, camera)
+                elif 0.5 < exposed.gain < 3.0:  # brought just inside the band (82 or 98)
+                    aim = EXPOSURE_AIM[0] if exposed.gain > 1.0 else EXPOSURE_AIM[1]
+                    assert abs(mean - aim) < 2.0, (frame, camera)
+                else:  # the gain's limit: as near as it goes
+                    assert mean < EXPOSURE_AIM[0] + 2.0 if exposed.gain == 3.0 else mean > 96.0
+                    assert exposed.gain in (0.5, 3.0)
+    assert any(1.0 < g < 3.0 for g in gains) and 3.0 in gains  # both branches seen
+    dropped = tmp_path / "dropped.mcap"
+    _copy_without(path, dropped, "/CAM_BACK/exposure", 2)
+    with LogReader(dropped) as log, pytest.raises(LogFormatError) as caught:
+        log.validate()
+    assert "/CAM_BACK/exposure" in str(caught.value) and "frame 2" in str(caught.value)
+    without = tmp_path / "without.mcap"
+    _copy_without(path, without, "", -1, drop_topics=lambda topic: topic.endswith("/exposure"))
+    with LogReader(without) as log:
+        log.validate()  # logs before look 10 carry no exposure
 
 
 def test_a_truncated_log_is_refused_clearly(collected_root: Path, tmp_path: Path):

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from drivee2e_data.hdmap import GeoOrigin
 from drivee2e_data.scenario import Conditions, Weather
-from drivee2e_data.sim.gl_readback import contiguous_rgb
+from drivee2e_data.sim.gl_readback import bgra_under, contiguous_rgb
 from drivee2e_data.sun import sun_position
 
 # metres of visibility (distance at which contrast falls to 5%); None: clear air
@@ -129,11 +129,16 @@ def exposure(rgb: NDArray[np.uint8], light: Lighting) -> Exposure:
 
 
 def expose(rgb: NDArray[np.uint8], gain: float) -> NDArray[np.uint8]:
-    """An image times its exposure's gain, rounded and saturated in 8 bits (itself at 1)."""
+    """An image times its exposure's gain, rounded and saturated in 8 bits (itself at 1). A
+    view of the GL renderer's BGRA read stays one (of the scaled BGRA), so that the JPEG
+    encoder still takes it without a conversion (`camera.encode_jpeg`)."""
     if gain == 1.0:
         return rgb
     import cv2
 
+    bgra = bgra_under(rgb)
+    if bgra is not None:
+        return cv2.convertScaleAbs(bgra, alpha=gain)[..., 2::-1]
     return cv2.convertScaleAbs(contiguous_rgb(rgb), alpha=gain)
 
 

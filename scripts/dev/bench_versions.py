@@ -2,7 +2,7 @@
 alternating, so that a change's cost is measured against what users ran before it.
 
     python scripts/dev/bench_versions.py --base REV [--clips 16] [--seed 0] [--max-frames 30]
-        [--repeats 2] [--workers auto] [--base-tree DIR] [-- EXTRA COLLECT ARGS]
+        [--repeats 2] [--workers auto] [--base-tree DIR] [--data ROOT] [-- EXTRA COLLECT ARGS]
 
 The clips are `drivee2e synth --clips N --seed S` (every weather and time of day the seed
 draws), curated once; each run collects all of them into a fresh logs folder with
@@ -122,6 +122,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--workers", default="auto")
     parser.add_argument("--base-tree", type=Path, default=None, help="the base version's files")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="a synthesised, curated root to copy instead of synthesising")  # fmt: skip
     parser.add_argument("--render", type=int, default=0, metavar="FRAMES",
                         help="also time drawing the six cameras over this many frames a clip")  # fmt: skip
     parser.add_argument("extra", nargs="*", help="more `drivee2e collect` arguments (after --)")
@@ -130,11 +132,16 @@ def main() -> None:
     try:
         base = base_tree(args.base, folder, args.base_tree)
         data = folder / "data"
-        cli(
-            ["synth", "--out", str(data), "--clips", str(args.clips), "--seed", str(args.seed)],
-            None,
-        )
-        cli(["curate", str(data)], None)
+        if args.data is not None:  # its scenarios and maps; logs are made by the runs
+            data.mkdir()
+            for part in ("scenarios", "maps"):
+                shutil.copytree(args.data / part, data / part)
+        else:
+            cli(
+                ["synth", "--out", str(data), "--clips", str(args.clips), "--seed", str(args.seed)],
+                None,
+            )
+            cli(["curate", str(data)], None)
         collect = ["collect", str(data), "--workers", args.workers, *args.extra]
         if args.max_frames:
             collect += ["--max-frames", str(args.max_frames)]
