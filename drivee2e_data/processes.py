@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import select
 import signal
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -78,6 +81,33 @@ def start_server(context: multiprocessing.context.BaseContext) -> None:
         forkserver.ensure_running()
 
 
+def end_with(pid: int) -> None:
+    """In a pool worker: SIGTERM itself when process `pid` (the command that made the pool)
+    ends, so that a command killed outright (SIGKILL, a crash: no `stop_pool`) leaves no worker
+    collecting on at full CPU for minutes; the worker's SIGTERM handler
+    (`clean_up_when_stopped`) still cleans up. A thread waits on the process (a pidfd where
+    Linux has them, else a check every second). Not the parent-death signal: a forkserver's
+    workers are its children, and it lives while they do (each holds its liveness pipe)."""
+
+    def watch() -> None:
+        try:
+            handle = os.pidfd_open(pid)
+        except (AttributeError, OSError):  # no pidfd here, or the process has already ended
+            while process_running(pid):
+                time.sleep(1.0)
+        else:
+            select.select([handle], [], [])
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name="end-with-command", daemon=True).start()
+
+
+def _start_worker(command: int, initializer: Callable[..., None], *initargs: object) -> None:
+    """A pool worker's start: `end_with` the command, then the pool's own initializer."""
+    end_with(command)
+    initializer(*initargs)
+
+
 @contextmanager
 def worker_pool(
     workers: int,
@@ -88,10 +118,12 @@ def worker_pool(
     """A pool of `workers` processes started by `context` (`SPAWN`, or `preloading`'s; queues
     and values they share are made from it too), each with one native thread
     (`one_thread_per_worker`), shut down when the block ends; stopped at once (`stop_pool`)
-    when it raises or is interrupted."""
+    when it raises or is interrupted; each worker ends itself if the command is killed
+    (`end_with`)."""
     with one_thread_per_worker():
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=context,
-                                   initializer=initializer, initargs=tuple(initargs))  # fmt: skip
+                                   initializer=_start_worker,
+                                   initargs=(os.getpid(), initializer, *initargs))  # fmt: skip
         try:
             yield pool
         except BaseException:

@@ -91,6 +91,49 @@ def test_a_preloading_pool_forks_workers_that_imported_the_modules_in_one_thread
     assert server == ["True", "True"]  # started early, and the one the pool used
 
 
+KILLED_PARENT = """
+import os, sys, time
+from drivee2e_data.processes import SPAWN, preloading, worker_pool
+
+def nothing():
+    pass
+
+if __name__ == "__main__":
+    context = preloading(["colorsys"]) if sys.argv[1] == "forkserver" else SPAWN
+    with worker_pool(2, nothing, (), context) as pool:
+        busy = [pool.submit(time.sleep, 120) for _ in range(2)]
+        time.sleep(1.0)
+        print(*[process.pid for process in pool._processes.values()], flush=True)
+        time.sleep(120)
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the forkserver start method is Linux's here")
+@pytest.mark.parametrize("method", ["forkserver", "spawn"])
+def test_a_killed_commands_pool_workers_end_with_it(tmp_path, method):
+    """A command killed outright (SIGKILL: no handler runs) takes its pool's workers with it,
+    busy as they are, whether forked from the forkserver or spawned (`end_with`)."""
+    import signal
+    import time
+
+    from drivee2e_data.processes import process_running
+
+    script = tmp_path / "parent.py"
+    script.write_text(KILLED_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script), method], stdout=subprocess.PIPE,
+                              text=True, cwd=tmp_path)  # fmt: skip
+    try:
+        workers = [int(pid) for pid in parent.stdout.readline().split()]
+        assert len(workers) == 2 and all(process_running(pid) for pid in workers)
+    finally:
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+    deadline = time.monotonic() + 20.0
+    while any(process_running(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(process_running(pid) for pid in workers)
+
+
 @pytest.mark.parametrize(
     ("argv", "pooled"),
     [
