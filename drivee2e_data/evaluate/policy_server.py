@@ -31,6 +31,7 @@ import numpy as np
 
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypoints
+from drivee2e_data.processes import end_with
 
 GATHER_S = 0.002  # after the first request, how long the server waits for more
 MAX_BATCH = 256
@@ -65,7 +66,9 @@ def serve(
     batch_shape: int = 1,
 ) -> None:
     """The server's loop (its own process): build the agent on `device`, then answer batches
-    (each run at `batch_shape` rows, `batch_plans`) until a None request comes."""
+    (each run at `batch_shape` rows, `batch_plans`) until a None request comes, or until the
+    command that started it is gone (`processes.end_with`: killed outright, it sends none)."""
+    end_with(os.getppid())
     os.environ[AGENT_DEVICE_VARIABLE] = device
     import torch
 
