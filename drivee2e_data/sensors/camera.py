@@ -9,7 +9,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sensors.rig import Camera
-from drivee2e_data.sim.conditions import Exposure, exposure, post_process, reduced_sensor_effects
+from drivee2e_data.sim.conditions import (
+    Exposure,
+    exposure,
+    meter,
+    post_process,
+    reduced_sensor_effects,
+)
 from drivee2e_data.sim.gl_readback import bgra_under
 from drivee2e_data.sim.world import World
 
@@ -116,10 +122,9 @@ def camera_exposure(world: World, view: CameraFrame) -> Exposure:
     """The camera's auto-exposure for this view, metered on the image as drawn
     (`conditions.exposure`; the CPU, GPU and closed-loop paths all meter it here). pybullet's
     renderers (look 1) keep their images as drawn: metered, gain 1."""
-    exposed = exposure(view.rgb, world.lighting)
     if world.renderer != "gl":
-        return Exposure(1.0, exposed.metered)
-    return exposed
+        return Exposure(1.0, float(meter(view.rgb).mean()))
+    return exposure(view.rgb, world.lighting)
 
 
 def with_conditions(

@@ -79,9 +79,6 @@ class Exposure:
     metered: float
 
 
-UNEXPOSED = Exposure(1.0, float("nan"))  # an image taken as drawn, unmetered
-
-
 def meter(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     """The grey levels (luma) the exposure meter reads of an image: a grid of about
     `METER_COLUMNS` pixels across, the same places of the view whatever size it is drawn at."""
