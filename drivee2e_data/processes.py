@@ -6,6 +6,7 @@ import multiprocessing
 import os
 import select
 import signal
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -61,12 +62,28 @@ def preloading(modules: Sequence[str]) -> multiprocessing.context.BaseContext:
     else `SPAWN`. The server is a fresh interpreter too (no pybullet or EGL state of the
     parent's), started by `start_server` or the first pool of this process, with the environment
     of that moment (`one_thread_per_worker`'s included), and serving every later pool: sixteen
-    workers importing the collector at once took about a second each on an H100 host."""
-    if "forkserver" not in multiprocessing.get_all_start_methods():
+    workers importing the collector at once took about a second each on an H100 host. Also
+    `SPAWN` where the temp folder's path is too long for the server's socket (`socket_fits`)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods() or not socket_fits():
         return SPAWN
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(list(modules))  # no effect once the server runs
     return context
+
+
+# A Unix socket's path holds at most 107 bytes on Linux (`sun_path`), and the fork server's
+# lies two levels under the temp folder: `pymp-XXXXXXXX/listener-XXXXXXXX`, 32 bytes with the
+# slashes. A longer TMPDIR (a batch system's per-job folder, a test's temporary folder) failed
+# every pool with "OSError: AF_UNIX path too long".
+SOCKET_PATH_BYTES = 107
+SERVER_SOCKET_SUFFIX_BYTES = 32
+
+
+def socket_fits(temporary: str | None = None) -> bool:
+    """Whether the fork server's socket fits under the temp folder (`temporary`, else this
+    process's `tempfile.gettempdir()`)."""
+    folder = os.fsencode(temporary if temporary is not None else tempfile.gettempdir())
+    return len(folder) + SERVER_SOCKET_SUFFIX_BYTES <= SOCKET_PATH_BYTES
 
 
 def start_server(context: multiprocessing.context.BaseContext) -> None:

@@ -2,6 +2,8 @@
 # Install everything, lint, and run the test suite. Fails on any failure.
 #   bash scripts/test.sh          everything (what CI runs)
 #   bash scripts/test.sh --quick  the edit-test loop: without the tests marked slow (end to end)
+# pytest runs a worker per core (pytest-xdist), each test file on one worker (its module-scoped
+# data made once); TEST_WORKERS=0 runs the tests in one process, as before.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # the tests run the Ray backend too (on a local Ray) and the data module under Lightning
@@ -15,8 +17,10 @@ if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then
 fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
+workers=(-n "${TEST_WORKERS:-auto}" --dist loadfile)
+[ "${TEST_WORKERS:-auto}" = 0 ] && workers=(-p no:xdist)
 if [ "${1:-}" = --quick ]; then
-    .venv/bin/python -m pytest -q -m "not slow"
+    .venv/bin/python -m pytest -q "${workers[@]}" -m "not slow"
 else
-    .venv/bin/python -m pytest -q
+    .venv/bin/python -m pytest -q "${workers[@]}"
 fi

@@ -1,12 +1,17 @@
-"""Shared fixtures: one synthetic data root per test session, made through the CLI."""
+"""Shared fixtures: one synthetic data root per test session, made through the CLI. Under
+pytest-xdist (`scripts/test.sh` runs a worker per core) each root is made once, by the first
+worker to need it, and every worker reads its own copy of it."""
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 from drivee2e_data import splits, store
 from drivee2e_data.cli import main
@@ -15,12 +20,37 @@ REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 DEFAULT_CLIPS = 12
 
 
+def made_once(
+    tmp_path_factory: pytest.TempPathFactory, name: str, make: Callable[[Path], None]
+) -> Path:
+    """A data root `make(root)` fills, made once per test run: by this process alone, or under
+    pytest-xdist by the first worker to ask (the others wait on a lock) in the run's shared
+    temporary folder, then copied into this worker's own (its tests may write beside the data,
+    as they do in a run without workers)."""
+    root = tmp_path_factory.mktemp(name) / "data"
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        make(root)
+        return root
+    shared = tmp_path_factory.getbasetemp().parent / f"made_once_{name}"
+    with FileLock(f"{shared}.lock"):
+        if not (shared / "made").exists():
+            shutil.rmtree(shared, ignore_errors=True)
+            make(shared / "data")
+            (shared / "made").touch()
+    shutil.copytree(shared / "data", root, symlinks=True)
+    return root
+
+
 @pytest.fixture(scope="session")
 def synthetic_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The default set: `drivee2e synth --clips 12 --seed 0`."""
-    root = tmp_path_factory.mktemp("synth") / "data"
-    assert main(["synth", "--out", str(root), "--clips", str(DEFAULT_CLIPS), "--seed", "0"]) == 0
-    return root
+    """The default set: `drivee2e synth --clips 12 --seed 0` (with a process per core: the same
+    files as one process makes)."""
+
+    def make(root: Path) -> None:
+        arguments = ["synth", "--out", str(root), "--clips", str(DEFAULT_CLIPS), "--seed", "0"]
+        assert main([*arguments, "--workers", str(min(4, os.cpu_count() or 1))]) == 0
+
+    return made_once(tmp_path_factory, "synth", make)
 
 
 @pytest.fixture(scope="session")
@@ -50,21 +80,14 @@ LONG_CLIP_FRAMES = 36  # enough for the 3 s future of frame 0 and a little more
 def collected_root(synthetic_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two clips of the default set collected: the first for 36 frames, the second for 6."""
     ids = store.scenario_ids(synthetic_root)[:2]
-    root = copy_clips(synthetic_root, tmp_path_factory.mktemp("collected") / "data", ids)
-    for scenario_id, frames in ((ids[0], LONG_CLIP_FRAMES), (ids[1], 6)):
-        code = main(
-            [
-                "collect",
-                str(root),
-                "--only",
-                scenario_id,
-                "--max-frames",
-                str(frames),
-                *SMALL_COLLECT,
-            ]
-        )
-        assert code == 0
-    return root
+
+    def make(root: Path) -> None:
+        copy_clips(synthetic_root, root, ids)
+        for scenario_id, frames in ((ids[0], LONG_CLIP_FRAMES), (ids[1], 6)):
+            arguments = ["--only", scenario_id, "--max-frames", str(frames), *SMALL_COLLECT]
+            assert main(["collect", str(root), *arguments]) == 0
+
+    return made_once(tmp_path_factory, "collected", make)
 
 
 @pytest.fixture(scope="session")
@@ -74,16 +97,19 @@ def loader_root(
     """Four collected clips (one per behaviour: STR 36 frames, LFT 6, RT 8, STP 8) in a 2:1:1
     manifest `splits/default.csv`: train LFT + RT, val STP, test STR (the straight clip)."""
     ids = store.scenario_ids(synthetic_root)[:4]
-    root = copy_clips(synthetic_root, tmp_path_factory.mktemp("loader") / "data", ids)
-    shutil.copytree(collected_root / "logs", root / "logs", ignore=shutil.ignore_patterns(".*"))
-    for scenario_id in ids[2:]:
-        code = main(
-            ["collect", str(root), "--only", scenario_id, "--max-frames", "8", *SMALL_COLLECT]
-        )
-        assert code == 0
-    assigned = dict(zip(ids, ("test", "train", "train", "val"), strict=True))
-    rows = [
-        dataclasses.replace(row, split=assigned[row.scenario_id]) for row in splits.clips_of(root)
-    ]
-    splits.write_manifest(splits.split_path(root, "default"), rows)
-    return root
+
+    def make(root: Path) -> None:
+        copy_clips(synthetic_root, root, ids)
+        logs = collected_root / "logs"
+        shutil.copytree(logs, root / "logs", ignore=shutil.ignore_patterns(".*"))
+        for scenario_id in ids[2:]:
+            arguments = ["--only", scenario_id, "--max-frames", "8", *SMALL_COLLECT]
+            assert main(["collect", str(root), *arguments]) == 0
+        assigned = dict(zip(ids, ("test", "train", "train", "val"), strict=True))
+        rows = [
+            dataclasses.replace(row, split=assigned[row.scenario_id])
+            for row in splits.clips_of(root)
+        ]
+        splits.write_manifest(splits.split_path(root, "default"), rows)
+
+    return made_once(tmp_path_factory, "loader", make)

@@ -26,6 +26,7 @@ from drivee2e_data.sources.synthetic import layout as layouts
 from drivee2e_data.sources.synthetic.population import crossing_pedestrian, crosswalk_crossing
 from drivee2e_data.sources.synthetic.staging import WARMUP_S, first_overlap
 from drivee2e_data.sources.synthetic.traffic import TrafficSimulation, VehicleSpec
+from tests.conftest import copy_clips
 from tests.factories import small_scenario, straight_track
 from tests.test_closedloop import FRAMES, parked, road_map, road_scenario, run
 
@@ -201,9 +202,12 @@ def test_a_u_turn_passes_pedestrians_waiting_at_its_corner() -> None:
 
 
 @pytest.mark.slow
-def test_split_leaves_flagged_clips_out_unless_kept(tmp_path: Path, capsys) -> None:
-    root = tmp_path / "data"
-    assert main(["synth", "--out", str(root), "--clips", "4", "--seed", "0"]) == 0
+def test_split_leaves_flagged_clips_out_unless_kept(
+    synthetic_root: Path, tmp_path: Path, capsys
+) -> None:
+    # the first clips of a seed's set are the same files whatever the set's size: these are
+    # `synth --clips 4 --seed 0`
+    root = copy_clips(synthetic_root, tmp_path / "data", store.scenario_ids(synthetic_root)[:4])
     assert main(["curate", str(root), "--workers", "1"]) == 0
     assert "expert replay: 4 of 4 clips driven cleanly, 0 flagged" in capsys.readouterr().out
     flagged = store.scenario_ids(root)[1]
@@ -219,9 +223,10 @@ def test_split_leaves_flagged_clips_out_unless_kept(tmp_path: Path, capsys) -> N
 
 
 @pytest.mark.slow
-def test_curate_checks_again_what_it_curated_and_a_rerun_resumes(tmp_path: Path, capsys) -> None:
-    root = tmp_path / "data"
-    assert main(["synth", "--out", str(root), "--clips", "2", "--seed", "0"]) == 0
+def test_curate_checks_again_what_it_curated_and_a_rerun_resumes(
+    synthetic_root: Path, tmp_path: Path, capsys
+) -> None:
+    root = copy_clips(synthetic_root, tmp_path / "data", store.scenario_ids(synthetic_root)[:2])
     assert main(["curate", str(root), "--workers", "2"]) == 0
     first = store.scenario_ids(root)[0]
     assert recorded_flags(store.read_meta(root, first)["metadata"]) == ()

@@ -4,11 +4,15 @@ its workers, which OpenBLAS reads when numpy loads (before any of our code runs 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 
+from drivee2e_data import processes
 from drivee2e_data.collect.preload import pools_workers
 from drivee2e_data.processes import WORKER_THREADS, one_thread_per_worker
 
@@ -89,6 +93,44 @@ def test_a_preloading_pool_forks_workers_that_imported_the_modules_in_one_thread
     assert (method, preloaded, parent_imported) == ("forkserver", "True", "False")
     assert (worker_setting, parent_setting) == ("1", "None")
     assert server == ["True", "True"]  # started early, and the one the pool used
+
+
+LONG_TEMP_PARENT = """
+import os
+from drivee2e_data.processes import preloading, start_server, worker_pool
+
+def pid():
+    return os.getpid()
+
+if __name__ == "__main__":
+    context = preloading(["colorsys"])
+    start_server(context)
+    with worker_pool(2, pid, (), context) as pool:
+        worker = pool.submit(pid).result()
+    print(context.get_start_method(), worker != os.getpid())
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the forkserver start method is Linux's here")
+@pytest.mark.parametrize("length, method", [(40, "forkserver"), (90, "spawn")])
+def test_a_temp_folder_too_long_for_the_servers_socket_gives_a_spawning_pool(
+    tmp_path, length, method
+):
+    """A TMPDIR whose path leaves the fork server's socket no room (a Unix socket's path is at
+    most 107 bytes) gets a pool of spawned workers instead of "AF_UNIX path too long"."""
+    temporary = Path(tempfile.mkdtemp(prefix="t", dir="/tmp"))
+    try:
+        long = temporary / ("x" * (length - len(str(temporary)) - 1))
+        long.mkdir()
+        assert len(str(long)) == length and processes.socket_fits(str(long)) == (length == 40)
+        script = tmp_path / "parent.py"
+        script.write_text(LONG_TEMP_PARENT)
+        done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                              cwd=tmp_path, env={**os.environ, "TMPDIR": str(long)})  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.split() == [method, "True"]
+    finally:
+        shutil.rmtree(temporary)
 
 
 KILLED_PARENT = """

@@ -7,6 +7,7 @@ of two paths inside which two vehicles (or a vehicle and a pedestrian) would tou
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -34,9 +35,9 @@ class Path:
     lanes: tuple[tuple[str, float, float], ...]  # (lane or movement id, s start, s end)
     speed_limit_mps: NDArray[np.float64]  # (N,) curve speed with braking look-ahead
 
-    @property
+    @functools.cached_property
     def length_m(self) -> float:
-        return float(self.s_m[-1])
+        return float(self.s_m[-1])  # read a few times per vehicle and step: worked out once
 
     def pose(
         self, s_query_m: NDArray[np.float64]

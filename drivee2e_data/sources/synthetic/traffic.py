@@ -10,6 +10,7 @@ Pedestrians walk their crossing on the walk signal and wait at the kerb for movi
 
 from __future__ import annotations
 
+import bisect
 import enum
 import math
 from dataclasses import dataclass, field
@@ -18,7 +19,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
-from drivee2e_data.geometry import interpolate_polyline, polyline_arclength
+from drivee2e_data.geometry import polyline_arclength
 from drivee2e_data.hdmap import TurnDirection
 from drivee2e_data.scenario import AgentClass, SignalState
 from drivee2e_data.sources.synthetic.paths import Path, PathNetwork, Zone
@@ -151,6 +152,7 @@ class TrafficSimulation:
         self.steps = round(duration_s / STEP_S) + 1
         self.paths: list[Path] = [network.paths[v.movement_id] for v in vehicles]
         self.ped_s = [polyline_arclength(p.path_m) for p in pedestrians]
+        self.ped_s_list = [along.tolist() for along in self.ped_s]  # for bisect
         self.max_accel = [DYNAMICS[v.agent_class][0] for v in vehicles]
         self.comfort_brake = [DYNAMICS[v.agent_class][1] for v in vehicles]
         self.half_length = [0.5 * v.length_m for v in vehicles]
@@ -252,9 +254,10 @@ class TrafficSimulation:
             obstacles = self._obstacles(
                 i, s_list, v_list, states, yellow_go, occupancy, on_movement
             )
-            best, kind, other = self._idm_free(i, s_list, v_list), Constraint.FREE, -1
+            free = self._idm_free(i, s_list, v_list)
+            best, kind, other = free, Constraint.FREE, -1
             for gap, speed, obstacle_kind, obstacle_other in obstacles:
-                candidate = self._idm(i, s_list, v_list, gap, speed)
+                candidate = self._idm(i, v_list, gap, speed, free)
                 if candidate < best:
                     best, kind, other = candidate, obstacle_kind, obstacle_other
             accel[i] = best
@@ -466,13 +469,15 @@ class TrafficSimulation:
         desired = min(self.vehicles[i].desired_speed_mps, self.paths[i].speed_limit_at(front))
         return self.max_accel[i] * (1.0 - (v[i] / max(desired, 0.1)) ** IDM_EXPONENT)
 
-    def _idm(self, i: int, s: NDArray, v: NDArray, gap: float, leader_speed: float) -> float:
+    def _idm(self, i: int, v: NDArray, gap: float, leader_speed: float, free: float) -> float:
+        """IDM's acceleration behind an obstacle `gap` ahead moving at `leader_speed`, `free`
+        being vehicle i's free-road term (`_idm_free`, worked out once a step)."""
         accel, brake = self.max_accel[i], self.comfort_brake[i]
         desired_gap = IDM_MIN_GAP_M + max(
             0.0,
             v[i] * IDM_HEADWAY_S + v[i] * (v[i] - leader_speed) / (2 * math.sqrt(accel * brake)),
         )
-        return self._idm_free(i, s, v) - accel * (desired_gap / max(gap, 0.05)) ** 2
+        return free - accel * (desired_gap / max(gap, 0.05)) ** 2
 
     def _advance_vehicles(
         self, step: int, s: NDArray, v: NDArray, state: NDArray, accel: NDArray, result: SimResult
@@ -502,10 +507,22 @@ class TrafficSimulation:
     # ------------------------------------------------------------------ pedestrians
 
     def _ped_position(self, k: int, s_value: float) -> NDArray[np.float64]:
-        position, _ = interpolate_polyline(
-            self.pedestrians[k].path_m, self.ped_s[k], np.array([s_value])
+        x, y, _ = self._walker_pose(k, s_value)
+        return np.array([x, y])
+
+    def _walker_pose(self, k: int, s_value: float) -> tuple[float, float, float]:
+        """Pedestrian k's (x, y, heading) at arclength `s_value`, clamped to its path: the
+        values `geometry.interpolate_polyline` gives for one query, without its arrays (a
+        few per walker and step)."""
+        path, along = self.pedestrians[k].path_m, self.ped_s[k]
+        s_clamped = min(max(s_value, 0.0), along[-1])
+        segment = min(max(bisect.bisect_right(self.ped_s_list[k], s_clamped) - 1, 0), len(path) - 2)
+        (x0, y0), (x1, y1) = path[segment, :2], path[segment + 1, :2]
+        return (
+            float(np.interp(s_clamped, along, path[:, 0])),
+            float(np.interp(s_clamped, along, path[:, 1])),
+            float(np.arctan2(y1 - y0, x1 - x0)),
         )
-        return position[0]
 
     def _road_clear(self, ped: PedestrianSpec, s: NDArray, v: NDArray, state: NDArray) -> bool:
         """No vehicle is on the crossing, and none is bearing down on it."""
@@ -607,13 +624,13 @@ class TrafficSimulation:
             result.s_m[i, step] = s[i]
             result.valid[i, step] = True
         offset = len(self.vehicles)
-        for k, ped in enumerate(self.pedestrians):
+        for k in range(len(self.pedestrians)):
             row = offset + k
             if state[row] != 1:
                 continue
-            position, heading = interpolate_polyline(ped.path_m, self.ped_s[k], np.array([s[row]]))
-            result.x_m[row, step], result.y_m[row, step] = position[0]
-            result.yaw_rad[row, step] = heading[0]
+            x, y, heading = self._walker_pose(k, s[row])
+            result.x_m[row, step], result.y_m[row, step] = x, y
+            result.yaw_rad[row, step] = heading
             result.speed_mps[row, step] = v[row]
             result.accel_mps2[row, step] = 0.0
             result.s_m[row, step] = s[row]
