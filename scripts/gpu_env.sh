@@ -23,6 +23,7 @@ fi
 # both extensions: pybullet alone quietly falls back to TinyRenderer
 find /tmp/build/pybullet-3.2.7/build -name "pybullet*.so" -o -name "eglRenderer*.so" \
     | xargs -I{} cp {} /tmp/site/
+rm -rf "$repo/build"  # setuptools would keep a module of an earlier build that is newer than its source
 PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation --target /tmp/proj "$repo"
 # byte-compiled as a pip install leaves them: else each of sixteen workers compiles the modules
 # it imports after its fork (0.12 s of a worker's first set-up on an H100 host)

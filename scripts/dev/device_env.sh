@@ -14,6 +14,11 @@ if [ -n "${BASE_TAR:-}" ]; then
     # the working tree with the base's versions of the files that differ put back over it
     rm -rf /tmp/base_src && mkdir -p /tmp/base_src && cp -r "$(pwd)/." /tmp/base_src/
     tar -xf "$BASE_TAR" -C /tmp/base_src
+    # without the working tree's build folder (left by gpu_env.sh's install): setuptools copies a
+    # module into build/lib only when the source is newer, and the tar's files carry their
+    # commit's older times, so the "base" installed was this version's code wherever the two
+    # differ (found 2026-11-29: both "versions" wrote the same logs)
+    rm -rf /tmp/base_src/build /tmp/base_src/*.egg-info
     PYTHONPATH=/tmp/site python3 -m pip install -q --no-deps --no-build-isolation \
         --target /tmp/proj_base /tmp/base_src > /tmp/base_install.log 2>&1
     python3 -m compileall -q /tmp/proj_base > /dev/null || true
