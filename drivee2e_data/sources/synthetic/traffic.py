@@ -507,22 +507,17 @@ class TrafficSimulation:
     # ------------------------------------------------------------------ pedestrians
 
     def _ped_position(self, k: int, s_value: float) -> NDArray[np.float64]:
-        x, y, _ = self._walker_pose(k, s_value)
-        return np.array([x, y])
+        return np.array(self._walker_xy(k, s_value))
 
     def _walker_pose(self, k: int, s_value: float) -> tuple[float, float, float]:
         """Pedestrian k's (x, y, heading) at arclength `s_value`, clamped to its path: the
         values `geometry.interpolate_polyline` gives for one query, without its arrays (a
-        few per walker and step)."""
+        few per walker and step); the heading is its leg's."""
         path, along = self.pedestrians[k].path_m, self.ped_s[k]
         s_clamped = min(max(s_value, 0.0), along[-1])
         segment = min(max(bisect.bisect_right(self.ped_s_list[k], s_clamped) - 1, 0), len(path) - 2)
         (x0, y0), (x1, y1) = path[segment, :2], path[segment + 1, :2]
-        return (
-            float(np.interp(s_clamped, along, path[:, 0])),
-            float(np.interp(s_clamped, along, path[:, 1])),
-            float(np.arctan2(y1 - y0, x1 - x0)),
-        )
+        return (*self._walker_xy(k, s_value), float(np.arctan2(y1 - y0, x1 - x0)))
 
     def _road_clear(self, ped: PedestrianSpec, s: NDArray, v: NDArray, state: NDArray) -> bool:
         """No vehicle is on the crossing, and none is bearing down on it."""
@@ -576,7 +571,8 @@ class TrafficSimulation:
             self._ped_state[k] = phase
 
     def _walker_xy(self, k: int, s_value: float) -> tuple[float, float]:
-        """Pedestrian k's position at arclength `s_value` on its path (its few straight legs)."""
+        """Pedestrian k's position at arclength `s_value` on its path (its few straight legs),
+        clamped to its ends."""
         path, along = self.pedestrians[k].path_m, self.ped_s[k]
         return (
             float(np.interp(s_value, along, path[:, 0])),
