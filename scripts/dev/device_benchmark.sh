@@ -32,10 +32,9 @@ if [ "${1:-}" != --wait ]; then
     echo "started benchmark.sh in the background"
     exit 0
 fi
-deadline=$(( $(date +%s) + ${2:-540} ))
-while [ "$(date +%s)" -lt "$deadline" ] && ! grep -q "^## Benchmark v1" /tmp/bench.log 2>/dev/null; do
-    sleep 10
-done
+# shellcheck source=scripts/dev/device_wait.sh
+source "$(dirname "$0")/device_wait.sh"
+wait_for "^## Benchmark v1" /tmp/bench.log "${2:-540}"
 grep "^== " /tmp/bench.log | tail -40
 grep -i -E "error|traceback" /tmp/bench.log | head -5
 # what a person reads, finished or not (a later call brings a newer copy)

@@ -13,10 +13,9 @@ set -uo pipefail
 RUN=/tmp/versions
 LOG="$RUN/log.txt"
 if [ "${1:-}" = --wait ]; then
-    deadline=$(( $(date +%s) + ${2:-540} ))
-    while [ "$(date +%s)" -lt "$deadline" ] && ! grep -q "^total:" "$LOG" 2>/dev/null; do
-        sleep 10
-    done
+    # shellcheck source=scripts/dev/device_wait.sh
+    source "$(dirname "$0")/device_wait.sh"
+    wait_for "^total:" "$LOG" "${2:-540}"
     cat "$LOG"
     [ -n "${OUT:-}" ] && cp "$LOG" "$OUT/log.txt"
     exit 0
