@@ -43,3 +43,87 @@ def test_a_plan_is_the_same_whichever_requests_it_is_batched_with() -> None:
     # a batch of another size may sum in another order (1e-7 here on the CPU), no more
     unpadded = agent.forward_batch({"x": np.stack([inputs[0]["x"], inputs[1]["x"]])})[0]
     assert np.allclose(unpadded, alone, atol=1e-5)
+
+
+def test_a_slot_carries_a_requests_arrays_and_grows_with_them(tmp_path) -> None:
+    import gc
+    import os
+
+    from drivee2e_data.evaluate.policy_server import InputSlot, SlotReader
+
+    slot, reader = InputSlot(str(tmp_path), 3), SlotReader()
+    rng = np.random.default_rng(1)
+    small = {"images": rng.integers(0, 256, (3, 3, 9, 16), dtype=np.uint8),
+             "vector": rng.standard_normal(6).astype(np.float32)}  # fmt: skip
+    layout = slot.write(small)
+    assert layout[0] == str(tmp_path / "worker-3")
+    assert [entry[0] for entry in layout[1]] == ["images", "vector"]
+    read = reader.read(layout)
+    assert all(np.array_equal(read[k], small[k]) and read[k].dtype == small[k].dtype for k in small)
+    # the next request's arrays, larger: the file grows and the server maps it again
+    large = {"images": rng.integers(0, 256, (3, 3, 36, 64), dtype=np.uint8),
+             "vector": rng.standard_normal(6).astype(np.float32)}  # fmt: skip
+    read = reader.read(slot.write(large))
+    assert all(np.array_equal(read[k], large[k]) for k in large)
+    del slot, read
+    gc.collect()
+    assert not os.path.exists(tmp_path / "worker-3")  # a worker's slot goes with it
+
+
+def test_a_runs_slot_folder_is_in_memory_and_removed_at_its_end() -> None:
+    import os
+
+    from drivee2e_data.evaluate.policy_server import InputSlot, remove_slots, slot_folder
+
+    folder = slot_folder()
+    try:
+        if os.access("/dev/shm", os.W_OK):
+            assert folder.startswith("/dev/shm/drivee2e-policy-")
+        InputSlot(folder, 0).write({"x": np.zeros(4, np.float32)})
+    finally:
+        remove_slots(folder)
+    assert not os.path.exists(folder)
+
+
+class _ServedToy(_Toy):
+    """`_Toy` with the rest of a servable agent's interface; its observation is its input."""
+
+    name = "toy"
+    sensors: tuple[str, ...] = ()
+    image_size = None
+
+    def model_inputs(self, observation: np.ndarray) -> dict[str, np.ndarray]:
+        return {"x": observation}
+
+
+def _toy_factory(name: str, checkpoint: object, network: bool = True) -> _ServedToy:
+    return _ServedToy()
+
+
+def test_served_agents_get_through_their_slots_the_plans_of_the_network() -> None:
+    from drivee2e_data.evaluate.policy_server import (
+        ServedAgent,
+        ServerHandle,
+        remove_slots,
+        serve,
+        slot_folder,
+    )
+    from drivee2e_data.processes import SPAWN
+
+    folder, inputs = slot_folder(), _inputs(6)
+    handle = ServerHandle(SPAWN.Queue(), (SPAWN.Queue(), SPAWN.Queue()), folder)
+    server = SPAWN.Process(
+        target=serve,
+        args=("toy", None, "cpu", handle.requests, handle.replies, _toy_factory, 2),
+        daemon=True,
+    )
+    server.start()
+    try:
+        agents = [ServedAgent(_ServedToy(), handle, worker) for worker in (0, 1)]
+        plans = [agents[k % 2].act(row["x"]).xy_m for k, row in enumerate(inputs)]
+    finally:
+        handle.requests.put(None)
+        server.join(timeout=60)
+        remove_slots(folder)
+    expected = batch_plans(_Toy(), inputs, 2)  # each alone in a batch of the server's size
+    assert all(np.array_equal(plan, want) for plan, want in zip(plans, expected, strict=True))

@@ -112,14 +112,19 @@ def test_a_training_replaying_cuda_graphs_is_the_eager_training(tmp_path: Path) 
 
 
 @pytest.mark.slow
-def test_tcp_trains_resumes_plans_and_drives_a_clip(loader_root: Path, tmp_path: Path) -> None:
+def test_tcp_trains_resumes_plans_and_drives_a_clip(
+    loader_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     checkpoint = tmp_path / "tcp.pt"
+    # a quarter of ResNet-18's width: the same path at a sixteenth of the trunk's arithmetic
     train = ["train", "tcp", str(loader_root), "--out", str(checkpoint), "--epochs", "2",
-             "--batch-size", "8", "--device", "cpu"]  # fmt: skip
+             "--batch-size", "8", "--device", "cpu", "--width", "16"]  # fmt: skip
     assert main(train) == 0
     saved = torch.load(checkpoint, map_location="cpu", weights_only=True)
     assert saved["kind"] == "tcp" and saved["epoch"] == 2 and saved["samples"] == 14
-    assert saved["options"]["learning_rate"] == 3e-4
+    assert saved["options"]["learning_rate"] == 3e-4 and saved["width"] == 16
+    assert main([*train[:6], "3", *train[7:-1], "8"]) == 2  # another width: not resumed
+    assert "other shapes" in capsys.readouterr().err
     assert main([*train[:6], "3", *train[7:]]) == 0  # resumes: one more epoch
     resumed = torch.load(checkpoint, map_location="cpu", weights_only=True)
     assert resumed["epoch"] == 3 and resumed["losses"][:2] == saved["losses"]

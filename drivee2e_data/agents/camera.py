@@ -19,6 +19,7 @@ from torch import nn
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents import training
 from drivee2e_data.agents.device import agent_device
+from drivee2e_data.agents.inference import NetworkRunner
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
@@ -256,8 +257,9 @@ class CameraAgent:
             )
         self.model, self.image_size = load(Path(checkpoint), network)
         self.device = agent_device() if network else "cpu"
+        self.runner = None
         if self.model is not None:
-            self.model.to(self.device)
+            self.runner = NetworkRunner(self.model.to(self.device), self.device)
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
@@ -267,14 +269,11 @@ class CameraAgent:
         images, vector = observation_inputs(observation, self.image_size, INPUT_SIZE)
         return {"images": images[0].numpy(), "vector": vector[0].numpy()}
 
-    @torch.no_grad()
     def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
         """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
-        if self.model is None:
+        if self.runner is None:
             raise DriveE2EError("this camera agent was built without its network (network=False)")
-        images = torch.from_numpy(inputs["images"]).to(self.device)
-        vector = torch.from_numpy(inputs["vector"]).to(self.device)
-        return self.model(images, vector).double().cpu().numpy()
+        return self.runner.plans(inputs["images"], inputs["vector"])
 
     def act(self, observation: Observation) -> Waypoints:
         inputs = self.model_inputs(observation)

@@ -29,9 +29,12 @@ def load(path: Path, kind: str, maker: str) -> dict[str, Any]:
     return saved
 
 
-def resume_state(path: Path, options: dict[str, Any], samples: int) -> dict[str, Any] | None:
+def resume_state(
+    path: Path, options: dict[str, Any], samples: int, header: dict[str, Any] | None = None
+) -> dict[str, Any] | None:
     """The saved checkpoint when `path` holds one made with the same options (the epoch count
-    aside) and data size; None when there is none; an error when it was made otherwise."""
+    aside), data size and `header` (the model's kind and shapes); None when there is none; an
+    error when it was made otherwise."""
     if not path.is_file():
         return None
     saved = _read(path)
@@ -45,7 +48,26 @@ def resume_state(path: Path, options: dict[str, Any], samples: int) -> dict[str,
             f"{path}: made with other options or data ({saved['options']}, {saved['samples']} "
             "samples); delete it or choose another --out"
         )
+    wanted = _plain(header or {})
+    other = {
+        key: saved.get(key) for key, value in wanted.items() if _plain(saved.get(key)) != value
+    }
+    if other:
+        here = {key: wanted[key] for key in other}
+        raise DriveE2EError(
+            f"{path}: a model of other shapes ({other}; this training's: {here}); delete it or "
+            "choose another --out"
+        )
     return saved
+
+
+def _plain(value: Any) -> Any:
+    """`value` with its tuples as lists, as a checkpoint may give them back either way."""
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value
 
 
 def _read(path: Path) -> Any:

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 RESNET18_BLOCKS = (2, 2, 2, 2)
+RESNET18_WIDTH = 64  # channels of the first stage
 
 
 class BasicBlock(nn.Module):
@@ -42,7 +43,9 @@ class ResNet(nn.Module):
     initialisation; each block's last batch norm starts at zero, so that every block starts as
     the identity (Goyal et al. 2017), which trains a deep net from scratch more steadily."""
 
-    def __init__(self, blocks: tuple[int, ...] = RESNET18_BLOCKS, width: int = 64) -> None:
+    def __init__(
+        self, blocks: tuple[int, ...] = RESNET18_BLOCKS, width: int = RESNET18_WIDTH
+    ) -> None:
         super().__init__()
         self.features = width * 2 ** (len(blocks) - 1)
         layers: list[nn.Module] = [

@@ -24,7 +24,8 @@ from drivee2e_data.agents import camera, training
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD
 from drivee2e_data.agents.device import agent_device
-from drivee2e_data.agents.resnet import RESNET18_BLOCKS, ResNet
+from drivee2e_data.agents.inference import NetworkRunner
+from drivee2e_data.agents.resnet import RESNET18_BLOCKS, RESNET18_WIDTH, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
@@ -54,7 +55,7 @@ class TCPPolicy(nn.Module):
         self,
         cameras: int = 3,
         steps: int = 6,
-        width: int = 64,
+        width: int = RESNET18_WIDTH,
         blocks: tuple[int, ...] = RESNET18_BLOCKS,
     ) -> None:
         super().__init__()
@@ -180,7 +181,7 @@ def train(
     on_epoch: Callable[[int, float], None] | None = None,
     on_sample: Callable[[int], None] | None = None,
     device: str = "cpu",
-    width: int = 64,
+    width: int = RESNET18_WIDTH,
     cuda_graphs: bool = True,
 ) -> dict[str, Any]:
     """Train on every sample of `dataset` (from `dataset_for`, or the split's feature cache of
@@ -237,8 +238,9 @@ class TCPAgent:
             raise DriveE2EError("agent tcp needs --checkpoint (drivee2e train tcp writes one)")
         self.model, self.image_size = load(Path(checkpoint), network)
         self.device = agent_device() if network else "cpu"
+        self.runner = None
         if self.model is not None:
-            self.model.to(self.device)
+            self.runner = NetworkRunner(self.model.to(self.device), self.device)
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
@@ -248,15 +250,11 @@ class TCPAgent:
         images, vector = camera.observation_inputs(observation, self.image_size, INPUT_SIZE)
         return {"images": images[0].numpy(), "vector": vector[0].numpy()}
 
-    @torch.no_grad()
     def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
         """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
-        if self.model is None:
+        if self.runner is None:
             raise DriveE2EError("this tcp agent was built without its network (network=False)")
-        images = torch.from_numpy(inputs["images"]).to(self.device)
-        vector = torch.from_numpy(inputs["vector"]).to(self.device)
-        plan, _ = self.model(images, vector)
-        return plan.double().cpu().numpy()
+        return self.runner.plans(inputs["images"], inputs["vector"])
 
     def act(self, observation: Observation) -> Waypoints:
         inputs = self.model_inputs(observation)

@@ -201,7 +201,7 @@ def fit(
     # on a GPU one fused kernel updates every parameter (the same AdamW, fewer launches)
     optimiser = torch.optim.AdamW(model.parameters(), lr=options.learning_rate, fused=cuda or None)
     state: dict[str, Any] = {"epoch": 0, "losses": []}
-    saved = checkpoints.resume_state(checkpoint, asdict(options), samples)
+    saved = checkpoints.resume_state(checkpoint, asdict(options), samples, header)
     if saved is not None:
         model.load_state_dict(saved["model"])
         optimiser.load_state_dict(saved["optimiser"])

@@ -79,6 +79,13 @@ def add_train(commands) -> None:  # type: ignore[no-untyped-def]
     )
     train.add_argument("--seed", type=int, default=0)
     train.add_argument(
+        "--width",
+        type=_positive,
+        default=None,
+        help="tcp: channels of the trunk's first stage (default 64, ResNet-18's; a smaller "
+        "trunk trains and drives faster, for trying the pipeline out)",
+    )
+    train.add_argument(
         "--device",
         default="auto",
         help="where to train (auto: the camera models on cuda where there is one, admlp on the "
@@ -260,10 +267,17 @@ def run_train(args: argparse.Namespace) -> int:
     learning_rate = args.learning_rate or LEARNING_RATES[args.model]
     options = TrainOptions(epochs, batch_size, learning_rate, args.seed)
     device = model_device(args.device, args.model)
+    if args.width is not None and args.model != "tcp":
+        raise DriveE2EError(f"--width: only tcp's trunk has a width, not {args.model}'s")
     if args.model == "camera":
         trainer = functools.partial(camera.train, device=device)
     elif args.model == "tcp":
-        trainer = functools.partial(tcp.train, device=device, cuda_graphs=not args.no_cuda_graphs)
+        trainer = functools.partial(
+            tcp.train,
+            device=device,
+            width=args.width or tcp.RESNET18_WIDTH,
+            cuda_graphs=not args.no_cuda_graphs,
+        )
     else:
         trainer = functools.partial(admlp.train, device=device)
     dataset = _features(args, args.model)

@@ -2,10 +2,13 @@
 network once and runs the observations of all the episodes that wait on it as one batch.
 
 Each evaluation worker keeps its own world and renderer and prepares its agent's inputs (the
-images it drew, the measurement vector); a `ServedAgent` sends them to the server of its GPU and
-waits for the plan. The server takes the first request, then every request already queued and
-those that arrive within `GATHER_S`, stacks them, runs the network once, and answers each
-worker. A worker then holds no copy of the network and no CUDA context of its own.
+images it drew, the measurement vector); a `ServedAgent` writes them into its own slot of shared
+memory (`InputSlot`: a file in a folder of the run's under /dev/shm, which the server maps too)
+and sends the server of its GPU their layout, a few hundred bytes instead of the images' 330 kB
+pickled through a pipe, then waits for the plan. The server takes the first request, then every
+request already queued and those that arrive within `GATHER_S` (until every worker it serves
+has asked), stacks them, runs the network once, and answers each worker. A worker then holds no
+copy of the network and no CUDA context of its own.
 
 An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
 observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
@@ -20,10 +23,14 @@ and 39.08 in two runs; at a fixed size a plan is a function of its own inputs.
 
 from __future__ import annotations
 
+import mmap
 import os
 import queue
+import shutil
+import tempfile
 import time
 from dataclasses import dataclass
+from multiprocessing import util
 from pathlib import Path
 from typing import Any
 
@@ -49,11 +56,94 @@ def servable(agent: Any) -> bool:
 
 @dataclass(frozen=True)
 class ServerHandle:
-    """What a worker needs to reach its server: the shared request queue and its own reply
-    queue (by worker number)."""
+    """What a worker needs to reach its server: the shared request queue, its own reply queue
+    (by worker number) and the folder of the input slots (`slot_folder`; "" sends the arrays
+    through the queue)."""
 
     requests: Any
     replies: tuple[Any, ...]
+    slots: str = ""
+
+
+# A request's inputs in a slot: the slot's path, then (key, dtype, shape, byte offset) per array
+Layout = tuple[str, tuple[tuple[str, str, tuple[int, ...], int], ...]]
+SLOT_ALIGN = 64  # bytes: each array starts on a cache line
+
+
+def slot_folder() -> str:
+    """A new folder for a run's input slots: under /dev/shm (memory) where there is one, else in
+    the temporary folder. `remove_slots` removes it when the run ends."""
+    root = "/dev/shm" if os.access("/dev/shm", os.W_OK) else None
+    return tempfile.mkdtemp(prefix="drivee2e-policy-", dir=root)
+
+
+def remove_slots(folder: str) -> None:
+    if folder:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+class InputSlot:
+    """One worker's inputs as bytes in a file of `folder` mapped into memory, which the server
+    maps too (`SlotReader`): `write` copies the arrays in and returns their layout, the request
+    sent instead of the arrays. The worker writes again only after the server's answer, so the
+    server reads a slot that nothing is writing. The file goes with the worker's exit."""
+
+    def __init__(self, folder: str, worker: int) -> None:
+        self.path = os.path.join(folder, f"worker-{worker}")
+        self._map: mmap.mmap | None = None
+        util.Finalize(self, _remove_file, (self.path,), exitpriority=10)
+
+    def write(self, inputs: dict[str, np.ndarray]) -> Layout:
+        arrays = {key: np.ascontiguousarray(value) for key, value in inputs.items()}
+        entries, size = [], 0
+        for key, array in arrays.items():
+            entries.append((key, array.dtype.str, tuple(array.shape), size))
+            size += -(-array.nbytes // SLOT_ALIGN) * SLOT_ALIGN
+        if self._map is None or len(self._map) < size:
+            self._open(size)
+        assert self._map is not None
+        for (_, _, _, offset), array in zip(entries, arrays.values(), strict=True):
+            self._map[offset : offset + array.nbytes] = array.reshape(-1).view(np.uint8).data
+        return self.path, tuple(entries)
+
+    def _open(self, size: int) -> None:
+        if self._map is not None:
+            self._map.close()
+        descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            os.ftruncate(descriptor, size)
+            self._map = mmap.mmap(descriptor, size)
+        finally:
+            os.close(descriptor)
+
+
+def _remove_file(path: str) -> None:
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+class SlotReader:
+    """The server's side of the slots: each worker's file mapped once (again where it grew)."""
+
+    def __init__(self) -> None:
+        self._maps: dict[str, mmap.mmap] = {}
+
+    def read(self, layout: Layout) -> dict[str, np.ndarray]:
+        """The arrays of one request, as views of the worker's slot (copy them before
+        answering it)."""
+        path, entries = layout
+        end = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
+                  for _, dtype, shape, offset in entries)  # fmt: skip
+        mapped = self._maps.get(path)
+        if mapped is None or len(mapped) < end:  # the old map closes with its last view
+            with open(path, "rb") as file:
+                mapped = self._maps[path] = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
+        return {
+            key: np.frombuffer(mapped, dtype, int(np.prod(shape)), offset).reshape(shape)
+            for key, dtype, shape, offset in entries
+        }
 
 
 def serve(
@@ -78,13 +168,17 @@ def serve(
         agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))
     except Exception as error:  # every episode then ends with this reason, none waits
         failure = f"the policy server could not build agent {agent_name!r}: {error}"
+    slots = SlotReader()
+    # a worker asks once at a time, and a server serves `batch_shape` workers at most: no more
+    # requests can come once that many have
+    most = max(1, min(MAX_BATCH, batch_shape))
     while True:
         first = requests.get()
         if first is None:
             return
         batch = [first]
         deadline = time.perf_counter() + GATHER_S
-        while len(batch) < MAX_BATCH:
+        while len(batch) < most:
             try:
                 item = requests.get_nowait()
             except queue.Empty:
@@ -105,7 +199,8 @@ def serve(
                 replies[worker].put(failure)
             continue
         try:
-            plans = batch_plans(agent, [inputs for _, inputs in batch], batch_shape)
+            inputs = [m if isinstance(m, dict) else slots.read(m) for _, m in batch]
+            plans = batch_plans(agent, inputs, batch_shape)
             answers: list[Any] = list(plans)
         except Exception as error:  # the network's failure ends those episodes, not the run
             answers = [f"the served network raised {type(error).__name__}: {error}"] * len(batch)
@@ -136,6 +231,7 @@ class ServedAgent:
         if not servable(agent):
             raise DriveE2EError(f"agent {agent.name!r} cannot be served (no model_inputs)")
         self.agent, self.handle, self.worker = agent, handle, worker
+        self.slot = InputSlot(handle.slots, worker) if handle.slots else None
         self.name = agent.name
         self.sensors = tuple(agent.sensors)
         self.image_size = agent.image_size
@@ -145,7 +241,9 @@ class ServedAgent:
         self.agent.setup(route, rig)
 
     def act(self, observation: Observation) -> Waypoints:
-        self.handle.requests.put((self.worker, self.agent.model_inputs(observation)))
+        inputs = self.agent.model_inputs(observation)
+        message = inputs if self.slot is None else self.slot.write(inputs)
+        self.handle.requests.put((self.worker, message))
         try:
             answer = self.handle.replies[self.worker].get(timeout=REPLY_TIMEOUT_S)
         except queue.Empty:

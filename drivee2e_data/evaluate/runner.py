@@ -412,7 +412,7 @@ def _start_servers(
     if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
         return []
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
-    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve
+    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve, slot_folder
 
     probe = _without_network(agent_factory, options.agent, checkpoint)
     if not servable(probe):
@@ -429,8 +429,9 @@ def _start_servers(
     # most workers it serves
     shape = -(-workers // len(devices))
     servers = []
+    slots = slot_folder()
     for device in devices:
-        handle = ServerHandle(SPAWN.Queue(), replies)
+        handle = ServerHandle(SPAWN.Queue(), replies, slots)
         process = SPAWN.Process(
             target=serve,
             args=(options.agent, options.checkpoint, device, handle.requests, replies,
@@ -443,12 +444,16 @@ def _start_servers(
 
 
 def _stop_servers(servers: list[tuple[Any, Any]]) -> None:
+    from drivee2e_data.evaluate.policy_server import remove_slots
+
     for handle, _ in servers:
         handle.requests.put(None)
     for _, process in servers:
         process.join(timeout=30)
         if process.is_alive():
             process.terminate()
+    for folder in {handle.slots for handle, _ in servers}:
+        remove_slots(folder)
 
 
 def _pool_episodes(

@@ -24,7 +24,7 @@ source "$repo/scripts/dev/device_env.sh"  # the environment; `versions`
 echo "environment: $(( $(date +%s) - start )) s; $(nproc) cores; $(nvidia-smi -L | wc -l) GPUs"
 cd /tmp
 stage() { local t; t=$(date +%s); "$@" > /tmp/stage.log 2>&1 || { tail -20 /tmp/stage.log; exit 1; }
-          echo "$* : $(( $(date +%s) - t )) s" | cut -c1-100; }
+          echo "$(( $(date +%s) - t )) s: $*" | cut -c1-110; }
 if [ ! -f "$DATA/splits/default.csv" ]; then
     stage drivee2e synth --out "$DATA" --clips "$CLIPS" --seed 0 --workers "$(nproc)"
     stage drivee2e curate "$DATA"
