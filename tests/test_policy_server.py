@@ -114,7 +114,7 @@ def test_served_agents_get_through_their_slots_the_plans_of_the_network() -> Non
     handle = ServerHandle(SPAWN.Queue(), (SPAWN.Queue(), SPAWN.Queue()), folder)
     server = SPAWN.Process(
         target=serve,
-        args=("toy", None, "cpu", handle.requests, handle.replies, _toy_factory, 2),
+        args=("toy", None, "cpu", handle.requests, handle.replies, _toy_factory, 2, 2),
         daemon=True,
     )
     server.start()

@@ -425,9 +425,8 @@ def _start_servers(
             return []
         devices = ["cpu"]
     replies = tuple(SPAWN.Queue() for _ in range(workers))
-    # worker k is served by server k mod len(devices): a server's batches are as large as the
-    # most workers it serves
-    shape = -(-workers // len(devices))
+    # worker k is served by server k mod len(devices)
+    served = -(-workers // len(devices))
     servers = []
     slots = slot_folder()
     for device in devices:
@@ -435,7 +434,7 @@ def _start_servers(
         process = SPAWN.Process(
             target=serve,
             args=(options.agent, options.checkpoint, device, handle.requests, replies,
-                  agent_factory, shape),
+                  agent_factory, served),
             daemon=True,
         )  # fmt: skip
         process.start()
