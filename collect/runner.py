@@ -844,13 +844,17 @@ def _run_ray(
 
 
 def _start_ray() -> int:
-    """Joins the Ray cluster that RAY_ADDRESS names (or starts a local one); returns its CPUs,
-    the task slots the units are planned for."""
+    """Joins the Ray cluster that RAY_ADDRESS names (or starts a local one of its own); returns
+    its CPUs, the task slots the units are planned for. Without RAY_ADDRESS, Ray's own default
+    joins whatever local cluster another process started last on this machine (its address
+    file under /tmp/ray), and a run then failed when that process shut its cluster down ("the
+    task's local raylet died"; seen with two commands at once): hence "local"."""
     try:
         import ray
     except ImportError:
         raise DriveE2EError("--backend ray needs Ray: pip install 'drivee2e-data[ray]'") from None
-    ray.init(ignore_reinit_error=True, log_to_driver=False)
+    address = os.environ.get("RAY_ADDRESS") or "local"
+    ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
 

@@ -9,17 +9,15 @@ cd "$(dirname "$0")/.."
 python3 -m venv .venv
 . .venv/bin/activate
 python -m pip install --quiet --upgrade pip
-# --no-compile: pip byte-compiles every module it installs (torch's alone: 13 of its 22 s on 2
-# cores); Python compiles the ones a program imports, once, the first time
 # shellcheck disable=SC2086
-python -m pip install --quiet --no-compile ${TORCH_SPEC:-torch==2.13.0}
-python -m pip install --quiet --no-compile -e ".[${EXTRAS:-dev,viz}]"
+python -m pip install --quiet ${TORCH_SPEC:-torch==2.13.0}
+python -m pip install --quiet -e ".[${EXTRAS:-dev,viz}]"
 # The CommonRoad importer uses commonroad-io's XML reader only. commonroad-io pins
 # protobuf==3.20, which the MCAP stack cannot use, so it goes in without its own requirements,
 # after the ones its XML reader needs: installed last and with --no-deps, pip has no conflict
 # to report (installed earlier, every later pip call printed a resolver ERROR about the pin).
-python -m pip install --quiet --no-compile "omegaconf>=2.1" "iso3166>=1.0" "lxml>=4.2" "networkx>=2.2" "rtree>=0.8" "scipy>=1.11" "pillow>=10.4"
-python -m pip install --quiet --no-compile --no-deps "commonroad-io==2026.1" "commonroad-vehicle-models==3.0.2"
+python -m pip install --quiet "omegaconf>=2.1" "iso3166>=1.0" "lxml>=4.2" "networkx>=2.2" "rtree>=0.8" "scipy>=1.11" "pillow>=10.4"
+python -m pip install --quiet --no-deps "commonroad-io==2026.1" "commonroad-vehicle-models==3.0.2"
 # Without a GPU, Mesa's llvmpipe draws the cameras. Mesa 25 (Debian 12's bookworm-backports, the
 # same LLVM) draws the same images as Debian 12's own Mesa 22.3 in about four fifths of the time
 # (docs/benchmarks.md), so it is fetched into .venv/mesa, where drivee2e finds it; it stays off

@@ -16,7 +16,7 @@ if ! .venv-nuscenes/bin/python -c "import nuscenes" 2>/dev/null; then
     (
         python3 -m venv .venv-nuscenes
         .venv-nuscenes/bin/python -m pip install --quiet --upgrade pip
-        .venv-nuscenes/bin/python -m pip install --quiet --no-compile "nuscenes-devkit==1.2.0"
+        .venv-nuscenes/bin/python -m pip install --quiet "nuscenes-devkit==1.2.0"
     ) >"$nuscenes_log" 2>&1 &
     nuscenes_pid=$!
 fi
@@ -29,7 +29,9 @@ if [ -n "$nuscenes_pid" ] && ! wait "$nuscenes_pid"; then
 fi
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
-workers=(-n "${TEST_WORKERS:-auto}" --dist loadfile)
+# a crashed worker fails the run at once: replaced, its file's tests could leave the run
+# waiting on them for good (seen once under --dist loadfile)
+workers=(-n "${TEST_WORKERS:-auto}" --dist loadfile --max-worker-restart 0)
 [ "${TEST_WORKERS:-auto}" = 0 ] && workers=(-p no:xdist)
 if [ "${1:-}" = --quick ]; then
     .venv/bin/python -m pytest -q "${workers[@]}" -m "not slow"

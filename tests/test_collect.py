@@ -413,3 +413,20 @@ def test_a_log_names_the_gl_driver_that_drew_it(collected_root: Path):
             pytest.skip("the GL renderer does not draw here")
         # this process makes its context as the collector's did (the same Mesa)
         assert collection["gl_driver"] == gl_driver() and ", OpenGL " in collection["gl_driver"]
+
+
+def test_ray_joins_the_cluster_ray_address_names_else_starts_its_own(monkeypatch) -> None:
+    """Without RAY_ADDRESS, Ray's default joins the local cluster another process started last,
+    and the run fails when that process shuts it down: the collector asks for a local one of
+    its own instead."""
+    ray = pytest.importorskip("ray", reason="the Ray backend needs the ray extra")
+    from drivee2e_data.collect import runner
+
+    calls: list[dict] = []
+    monkeypatch.setattr(ray, "init", lambda **kwargs: calls.append(kwargs))
+    monkeypatch.setattr(ray, "cluster_resources", lambda: {"CPU": 3.0})
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    assert runner._start_ray() == 3
+    monkeypatch.setenv("RAY_ADDRESS", "10.0.0.5:6379")
+    runner._start_ray()
+    assert [call["address"] for call in calls] == ["local", "10.0.0.5:6379"]
