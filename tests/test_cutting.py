@@ -1,6 +1,5 @@
 """Cutting long recordings: a clip per vehicle passing through the junction, or fixed windows."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,19 +13,19 @@ from drivee2e_data.sources.cutting import cut_clips, cut_ego_clips, junction_are
 from tests.factories import T0_NS, small_map, small_scenario, straight_track
 
 
-@pytest.fixture(scope="module")
-def recording_root(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("recording")
-    assert main(["synth", "--out", str(root), "--recording-seconds", "60"]) == 0
-    return root
-
-
 @pytest.mark.slow
-def test_a_recording_gives_a_clip_per_ego_three_times_the_windows(recording_root: Path, tmp_path):
+def test_a_recording_gives_a_clip_per_ego_three_times_the_windows(tmp_path):
     from drivee2e_data.sources.synthetic.recording import generate_recording
 
     site, recording = generate_recording(0, 0, 60.0)
     assert recording.ego_id is None and recording.num_frames == 601
+    # cut and written as `synth --recording-seconds 60` does (`pipeline.synthesize_recording`;
+    # the command itself runs below with `--cut windows`), without making the recording again
+    recording_root = tmp_path / "recording"
+    pieces, _ = pipeline.split_recording(recording, site.intersection_map, 20.0, "ego")
+    store.write_map(recording_root, site.intersection_map)
+    for piece in pieces:
+        store.write_scenario(recording_root, piece)
     windows = cut_clips(recording, 20.0, [t.track_id for t in recording.tracks])
     with_ego = [clip for clip in windows if clip.ego_id is not None]
     clips = store.scenario_ids(recording_root)
