@@ -1,6 +1,5 @@
 """Cutting long recordings: a clip per vehicle passing through the junction, or fixed windows."""
 
-
 import numpy as np
 import pytest
 import shapely

@@ -78,11 +78,37 @@ def test_a_runs_slot_folder_is_in_memory_and_removed_at_its_end() -> None:
     folder = slot_folder()
     try:
         if os.access("/dev/shm", os.W_OK):
-            assert folder.startswith("/dev/shm/drivee2e-policy-")
+            assert folder.startswith(f"/dev/shm/drivee2e-policy-{os.getpid()}-")
         InputSlot(folder, 0).write({"x": np.zeros(4, np.float32)})
     finally:
         remove_slots(folder)
     assert not os.path.exists(folder)
+
+
+def test_the_slots_of_a_command_killed_outright_go_with_the_next_run() -> None:
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from drivee2e_data.evaluate.policy_server import remove_slots, slot_folder
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    probe = slot_folder()
+    root = Path(probe).parent
+    remove_slots(probe)
+    orphan = root / f"drivee2e-policy-{gone.stdout.strip()}-left"
+    living = root / f"drivee2e-policy-{os.getppid()}-kept"  # this process's parent runs
+    for folder in (orphan, living):
+        folder.mkdir()
+        (folder / "worker-0").write_bytes(b"x")
+    try:
+        remove_slots(slot_folder())
+        assert not orphan.exists() and living.exists()
+    finally:
+        remove_slots(str(orphan))
+        remove_slots(str(living))
 
 
 class _ServedToy(_Toy):

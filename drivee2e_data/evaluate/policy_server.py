@@ -40,7 +40,7 @@ import numpy as np
 
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypoints
-from drivee2e_data.processes import end_with
+from drivee2e_data.processes import end_with, process_running
 
 GATHER_S = 0.002  # after the first request, how long the server waits for more
 MAX_BATCH = 256
@@ -75,11 +75,19 @@ Layout = tuple[str, tuple[tuple[str, str, tuple[int, ...], int], ...]]
 SLOT_ALIGN = 64  # bytes: each array starts on a cache line
 
 
+SLOT_PREFIX = "drivee2e-policy-"  # then the command's process id
+
+
 def slot_folder() -> str:
     """A new folder for a run's input slots: under /dev/shm (memory) where there is one, else in
-    the temporary folder. `remove_slots` removes it when the run ends."""
-    root = "/dev/shm" if os.access("/dev/shm", os.W_OK) else None
-    return tempfile.mkdtemp(prefix="drivee2e-policy-", dir=root)
+    the temporary folder, named after this process. `remove_slots` removes it when the run
+    ends; the folders of commands killed outright (their process gone) go here."""
+    root = "/dev/shm" if os.access("/dev/shm", os.W_OK) else tempfile.gettempdir()
+    for orphan in Path(root).glob(f"{SLOT_PREFIX}*"):
+        owner = orphan.name[len(SLOT_PREFIX) :].split("-")[0]
+        if owner.isdigit() and not process_running(int(owner)):
+            shutil.rmtree(orphan, ignore_errors=True)
+    return tempfile.mkdtemp(prefix=f"{SLOT_PREFIX}{os.getpid()}-", dir=root)
 
 
 def remove_slots(folder: str) -> None:
