@@ -3,9 +3,9 @@ network once and runs the observations of all the episodes that wait on it as on
 
 Each evaluation worker keeps its own world and renderer and prepares its agent's inputs (the
 images it drew, the measurement vector); a `ServedAgent` writes them into its own slot of shared
-memory (`InputSlot`: a file in a folder of the run's under /dev/shm, which the server maps too)
-and sends the server of its GPU their layout, a few hundred bytes instead of the images' 330 kB
-pickled through a pipe, then waits for the plan. The server takes the first request, then every
+memory (`evaluate/slots.py`: a file in a folder of the run's under /dev/shm, which the server
+maps too) and sends the server of its GPU their layout, a few hundred bytes instead of the
+images' 330 kB pickled through a pipe, then waits for the plan. The server takes the first request, then every
 request already queued and those that arrive within `GATHER_S` (until every worker it serves
 has asked), stacks them, runs the network once, and answers each worker. A worker then holds no
 copy of the network and no CUDA context of its own.
@@ -25,14 +25,10 @@ is a function of its own inputs on a given GPU, whatever the worker count.
 
 from __future__ import annotations
 
-import mmap
 import os
 import queue
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass
-from multiprocessing import util
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +36,8 @@ import numpy as np
 
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypoints
-from drivee2e_data.processes import end_with, process_running
+from drivee2e_data.evaluate.slots import InputSlot, SlotReader
+from drivee2e_data.processes import end_with
 
 GATHER_S = 0.002  # after the first request, how long the server waits for more
 MAX_BATCH = 256
@@ -68,95 +65,6 @@ class ServerHandle:
     requests: Any
     replies: tuple[Any, ...]
     slots: str = ""
-
-
-# A request's inputs in a slot: the slot's path, then (key, dtype, shape, byte offset) per array
-Layout = tuple[str, tuple[tuple[str, str, tuple[int, ...], int], ...]]
-SLOT_ALIGN = 64  # bytes: each array starts on a cache line
-
-
-SLOT_PREFIX = "drivee2e-policy-"  # then the command's process id
-
-
-def slot_folder() -> str:
-    """A new folder for a run's input slots: under /dev/shm (memory) where there is one, else in
-    the temporary folder, named after this process. `remove_slots` removes it when the run
-    ends; the folders of commands killed outright (their process gone) go here."""
-    root = "/dev/shm" if os.access("/dev/shm", os.W_OK) else tempfile.gettempdir()
-    for orphan in Path(root).glob(f"{SLOT_PREFIX}*"):
-        owner = orphan.name[len(SLOT_PREFIX) :].split("-")[0]
-        if owner.isdigit() and not process_running(int(owner)):
-            shutil.rmtree(orphan, ignore_errors=True)
-    return tempfile.mkdtemp(prefix=f"{SLOT_PREFIX}{os.getpid()}-", dir=root)
-
-
-def remove_slots(folder: str) -> None:
-    if folder:
-        shutil.rmtree(folder, ignore_errors=True)
-
-
-class InputSlot:
-    """One worker's inputs as bytes in a file of `folder` mapped into memory, which the server
-    maps too (`SlotReader`): `write` copies the arrays in and returns their layout, the request
-    sent instead of the arrays. The worker writes again only after the server's answer, so the
-    server reads a slot that nothing is writing. The file goes with the worker's exit."""
-
-    def __init__(self, folder: str, worker: int) -> None:
-        self.path = os.path.join(folder, f"worker-{worker}")
-        self._map: mmap.mmap | None = None
-        util.Finalize(self, _remove_file, (self.path,), exitpriority=10)
-
-    def write(self, inputs: dict[str, np.ndarray]) -> Layout:
-        arrays = {key: np.ascontiguousarray(value) for key, value in inputs.items()}
-        entries, size = [], 0
-        for key, array in arrays.items():
-            entries.append((key, array.dtype.str, tuple(array.shape), size))
-            size += -(-array.nbytes // SLOT_ALIGN) * SLOT_ALIGN
-        if self._map is None or len(self._map) < size:
-            self._open(size)
-        assert self._map is not None
-        for (_, _, _, offset), array in zip(entries, arrays.values(), strict=True):
-            self._map[offset : offset + array.nbytes] = array.reshape(-1).view(np.uint8).data
-        return self.path, tuple(entries)
-
-    def _open(self, size: int) -> None:
-        if self._map is not None:
-            self._map.close()
-        descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o600)
-        try:
-            os.ftruncate(descriptor, size)
-            self._map = mmap.mmap(descriptor, size)
-        finally:
-            os.close(descriptor)
-
-
-def _remove_file(path: str) -> None:
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass
-
-
-class SlotReader:
-    """The server's side of the slots: each worker's file mapped once (again where it grew)."""
-
-    def __init__(self) -> None:
-        self._maps: dict[str, mmap.mmap] = {}
-
-    def read(self, layout: Layout) -> dict[str, np.ndarray]:
-        """The arrays of one request, as views of the worker's slot (copy them before
-        answering it)."""
-        path, entries = layout
-        end = max(offset + np.dtype(dtype).itemsize * int(np.prod(shape))
-                  for _, dtype, shape, offset in entries)  # fmt: skip
-        mapped = self._maps.get(path)
-        if mapped is None or len(mapped) < end:  # the old map closes with its last view
-            with open(path, "rb") as file:
-                mapped = self._maps[path] = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
-        return {
-            key: np.frombuffer(mapped, dtype, int(np.prod(shape)), offset).reshape(shape)
-            for key, dtype, shape, offset in entries
-        }
 
 
 def serve(

@@ -412,7 +412,8 @@ def _start_servers(
     if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
         return []
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
-    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve, slot_folder
+    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve
+    from drivee2e_data.evaluate.slots import slot_folder
 
     probe = _without_network(agent_factory, options.agent, checkpoint)
     if not servable(probe):
@@ -443,7 +444,7 @@ def _start_servers(
 
 
 def _stop_servers(servers: list[tuple[Any, Any]]) -> None:
-    from drivee2e_data.evaluate.policy_server import remove_slots
+    from drivee2e_data.evaluate.slots import remove_slots
 
     for handle, _ in servers:
         handle.requests.put(None)
