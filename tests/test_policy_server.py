@@ -79,7 +79,14 @@ def test_served_agents_get_through_their_slots_the_plans_of_the_network() -> Non
     server.start()
     try:
         agents = [ServedAgent(_ServedToy(), handle, worker) for worker in (0, 1)]
+
+        def full(inputs: dict[str, np.ndarray]) -> None:
+            raise OSError(28, "No space left on device")
+
+        assert agents[1].slot is not None
+        agents[1].slot.write = full  # type: ignore[method-assign]  # a full /dev/shm
         plans = [agents[k % 2].act(row["x"]).xy_m for k, row in enumerate(inputs)]
+        assert agents[0].slot is not None and agents[1].slot is None  # by the queue instead
     finally:
         handle.requests.put(None)
         server.join(timeout=60)

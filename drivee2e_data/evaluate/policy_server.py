@@ -164,7 +164,12 @@ class ServedAgent:
 
     def act(self, observation: Observation) -> Waypoints:
         inputs = self.agent.model_inputs(observation)
-        message = inputs if self.slot is None else self.slot.write(inputs)
+        message: Any = inputs
+        if self.slot is not None:
+            try:
+                message = self.slot.write(inputs)
+            except OSError:  # no room for the slot (a full /dev/shm): the arrays go by the queue
+                self.slot = None
         self.handle.requests.put((self.worker, message))
         try:
             answer = self.handle.replies[self.worker].get(timeout=REPLY_TIMEOUT_S)

@@ -69,6 +69,10 @@ class InputSlot:
         descriptor = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o600)
         try:
             os.ftruncate(descriptor, size)
+            # the pages taken now: a full /dev/shm (a container's is 64 MB) is then an OSError
+            # here, where writing into a mapping of pages it cannot give would kill the worker
+            # (SIGBUS)
+            os.posix_fallocate(descriptor, 0, size)
             self._map = mmap.mmap(descriptor, size)
         finally:
             os.close(descriptor)
