@@ -5,10 +5,10 @@ Each evaluation worker keeps its own world and renderer and prepares its agent's
 images it drew, the measurement vector); a `ServedAgent` writes them into its own slot of shared
 memory (`evaluate/slots.py`: a file in a folder of the run's under /dev/shm, which the server
 maps too) and sends the server of its GPU their layout, a few hundred bytes instead of the
-images' 330 kB pickled through a pipe, then waits for the plan. The server takes the first request, then every
-request already queued and those that arrive within `GATHER_S` (until every worker it serves
-has asked), stacks them, runs the network once, and answers each worker. A worker then holds no
-copy of the network and no CUDA context of its own.
+images' 330 kB pickled through a pipe, then waits for the plan. The server takes the first
+request, then every request already queued and those that arrive within `GATHER_S` (until
+every worker it serves has asked), stacks them, runs the network once, and answers each
+worker. A worker then holds no copy of the network and no CUDA context of its own.
 
 An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
 observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
