@@ -227,6 +227,33 @@ def test_depth_gathered_at_chosen_pixels_is_the_whole_depth_there(site):
     assert len(np.unique(expected)) > 100  # sky, road and buildings: many depths
 
 
+def test_a_view_reduced_on_the_gpu_is_the_area_resize_of_the_view_drawn(site):
+    """The closed-loop observer's views come back reduced on the GPU (`reduce_by`): by 3 (odd:
+    no mean lies halfway between two levels), each pixel the byte OpenCV's area resize gives
+    of the whole view drawn at three times the size; by 2, within a level of it. A reduction
+    that does not divide the size, or one asked with ids or depth, is refused."""
+    import cv2
+
+    intersection_map, scenario = site
+    with World(intersection_map, scenario, renderer="gl") as world:
+        eye = _eye_at(world, 20)
+        target = eye + 10 * np.array([1.0, 0.0, 0.0])
+        for factor, tolerance in ((3, 0), (2, 1)):
+            whole = world.render(eye, target, 96 * factor, 54 * factor, 40.0, near_m=0.5)
+            reduced = world.render(eye, target, 96 * factor, 54 * factor, 40.0, near_m=0.5,
+                                   reduce_by=factor)  # fmt: skip
+            expected = cv2.resize(np.ascontiguousarray(whole.rgb), (96, 54),
+                                  interpolation=cv2.INTER_AREA)  # fmt: skip
+            assert reduced.rgb.shape == (54, 96, 3) and reduced.depth_m is None
+            difference = np.abs(reduced.rgb.astype(int) - expected.astype(int))
+            assert difference.max() <= tolerance, factor
+        assert len(np.unique(expected.reshape(-1, 3), axis=0)) > 500  # a street, not a blank
+        with pytest.raises(ValueError, match="cannot be reduced"):
+            world.render(eye, target, 100, 54, 40.0, reduce_by=3)
+        with pytest.raises(ValueError, match="colour alone"):
+            world.render(eye, target, 96, 54, 40.0, segmentation=True, reduce_by=3)
+
+
 def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):
     """Collection syncs each frame twice (the cameras with the ego hidden, the top view with it
     shown); the actors whose pose did not change keep their placed vertices. The ego's body

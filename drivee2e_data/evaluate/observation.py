@@ -6,10 +6,13 @@ Two ways to the images, chosen by what the agent declares:
 - `image_size` alone: JPEG bytes per camera at that size, the collection's own path (the same
   bytes as the log where the pose is the logged one).
 - `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
-  to it): each camera is drawn at the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8)
-  that keeps at least `SUPERSAMPLE` times `input_size`, its noise and rain made at the full
-  size and averaged (`sensors.camera.with_conditions_reduced`), then area-resized to
-  `input_size`: planar RGB `(3, H, W)` uint8, no JPEG either way, at a fraction of the pixels.
+  to it): each camera is drawn at a whole multiple k of `input_size`, at least `SUPERSAMPLE`,
+  as many as fit the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8) that keeps
+  `SUPERSAMPLE` times `input_size` (the size the Dataset decodes the logged JPEG at before its
+  area resize), reduced to `input_size` on the GPU (each pixel the mean of k x k drawn ones),
+  its noise and rain made at the full size and averaged
+  (`sensors.camera.with_conditions_reduced`): planar RGB `(3, H, W)` uint8, no JPEG either
+  way, at a fraction of the pixels, and only the input's pixels read back.
   The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
   and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
   faint continuous line; drawn at the input size itself it would break into dashes where it
@@ -54,9 +57,9 @@ SUPERSAMPLE = 2
 class SensorObserver:
     """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
     agent whose training images were collected at `image_size` (width, height; None for
-    1600x900); with `input_size`, drawn small (at least `supersample` times `input_size`) and
-    served as the decoded pixels at that size (`Observation.pixels`) instead of JPEG bytes
-    (`Observation.images`)."""
+    1600x900); with `input_size`, drawn small (a whole multiple of `input_size`, at least
+    `supersample`, reduced to it on the GPU) and served as the decoded pixels at that size
+    (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
 
     def __init__(
         self,
@@ -73,10 +76,14 @@ class SensorObserver:
         drawn = self.full_size
         if world.renderer != "gl":  # pybullet's renderers draw no weather: the JPEG path
             self.input_size = None
+        # each input pixel the mean of reduce_by x reduce_by drawn ones (on the GPU)
+        self.reduce_by = 1
         if self.input_size is not None:
-            wanted = (supersample * self.input_size[0], supersample * self.input_size[1])
-            factor = reduction(self.full_size, wanted)
-            drawn = (self.full_size[0] // factor, self.full_size[1] // factor)
+            width, height = self.input_size
+            factor = reduction(self.full_size, (supersample * width, supersample * height))
+            decoded = (self.full_size[0] // factor, self.full_size[1] // factor)
+            self.reduce_by = max(supersample, min(decoded[0] // width, decoded[1] // height))
+            drawn = (self.reduce_by * width, self.reduce_by * height)
         self.rig = configured_rig(SuiteOptions(cameras=cameras, image_size=self.full_size))
         self.drawn_rig = configured_rig(SuiteOptions(cameras=cameras, image_size=drawn))
 
@@ -101,7 +108,8 @@ class SensorObserver:
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images: dict[str, bytes | NDArray[np.uint8]] = {}
         for camera in self.drawn_rig.cameras:
-            view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
+            view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH,
+                          reduce_by=self.reduce_by)  # fmt: skip
             if self.input_size is None:
                 images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
             else:

@@ -91,16 +91,19 @@ def render(
     ego_to_world: NDArray[np.float64],
     mask: bool = True,
     depth_at: NDArray[np.int32] | None = None,
+    reduce_by: int = 1,
 ) -> CameraFrame:
     """The camera's view at the world's current frame (the rig's cameras are level).
     `depth_at` `(N, 2)` (column, row as drawn): the pixels whose depth is needed, read alone
-    where the renderer can (`CameraFrame.depth_samples`)."""
+    where the renderer can (`CameraFrame.depth_samples`). `reduce_by` k (the GL renderer's):
+    drawn at the camera's size and reduced on the GPU to a k-th of it, each pixel the mean of
+    k x k drawn ones; the colour alone (`World.render`)."""
     pose = camera_to_world(camera, ego_to_world)
     eye = pose[:3, 3]
     target = eye + 10.0 * pose[:3, 2]
     image = world.render(
         eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask,
-        near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at,
+        near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at, reduce_by=reduce_by,
     )  # fmt: skip
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation,

@@ -70,6 +70,8 @@ FRAMEBUFFER_OUTPUTS = {
     "plain": ("bgra", "depth", "body"),
     "labels": ("depth", "body"),
 }
+# the box reduction's source (`queue`'s `reduce_by`): after the scene's three and the gather's
+REDUCE_TEXTURE_UNIT = 4
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
 # shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
 SHADOW_MAP_PX = 2048
@@ -306,7 +308,8 @@ class SceneLights:
 class PendingView:
     """A view drawn whose pixels may still be on their way from the GPU (`GLRenderer.queue`);
     `result` waits for them: RGB `(H, W, 3)`, depth in metres `(H, W)` (or `(N,)` at the pixels
-    gathered) and the body ids `(H, W)` (-1 for none) where they were asked for."""
+    gathered; None where not drawn: a reduced view) and the body ids `(H, W)` (-1 for none)
+    where they were asked for."""
 
     def __init__(
         self,
@@ -317,13 +320,16 @@ class PendingView:
         colour: bool,
         segmentation: bool,
         gathered: Callable[[], NDArray[np.float32]] | None = None,
+        depth: bool = True,
     ) -> None:
         self.context, self.pixels = context, pixels
         self.width, self.height = width, height
         self.colour, self.segmentation = colour, segmentation
-        self.gathered = gathered
+        self.gathered, self.depth = gathered, depth
 
-    def result(self) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
+    def result(
+        self,
+    ) -> tuple[NDArray[np.uint8], NDArray[np.float32] | None, NDArray[np.int32] | None]:
         with current(self.context):
             arrays = list(self.pixels.result())
             # the depth at the pixels asked for (`GLRenderer.queue`'s `depth_at`), if gathered
@@ -336,7 +342,7 @@ class PendingView:
             rgb = arrays.pop(0)[..., 2::-1]
         else:
             rgb = np.zeros((self.height, self.width, 3), np.uint8)
-        depth_m = samples if samples is not None else arrays.pop(0)
+        depth_m = samples if samples is not None else arrays.pop(0) if self.depth else None
         body = None
         if self.segmentation:
             body = arrays.pop(0).astype(np.int32)
@@ -440,6 +446,10 @@ class GLRenderer:
             self.sky_buffer = context.buffer(corners.tobytes())
             self.sky_array = context.vertex_array(
                 self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
+            )
+            self.reduce_program = _program("reduce.vert", "reduce.frag")
+            self.reduce_array = context.vertex_array(
+                self.reduce_program, [(self.sky_buffer, "2f", "in_corner")]
             )
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
@@ -701,19 +711,26 @@ class GLRenderer:
         self.placed[body] = ((position, orientation, animation), vertices)
         return vertices
 
-    def _framebuffer(self, width: int, height: int, outputs: tuple[str, ...]):
+    def _framebuffer(
+        self, width: int, height: int, outputs: tuple[str, ...], sampled: bool = False
+    ):
         """A framebuffer of `width` x `height` with one colour attachment per name in `outputs`
         (`FRAMEBUFFER_OUTPUTS`, in the order of the shaders' output locations) and a depth
         buffer; made once per size and kind. The depth is a texture, which the gather pass
-        reads (`queue`'s `depth_at`)."""
+        reads (`queue`'s `depth_at`); so is the colour where `sampled` (the box reduction reads
+        it: `queue`'s `reduce_by`)."""
         import moderngl
 
-        framebuffer = self.framebuffers.get((width, height, outputs))
+        framebuffer = self.framebuffers.get((width, height, outputs, sampled))
         if framebuffer is None:
             context = self.context
             attachments = []
             for name in outputs:
-                if name == "bgra":
+                if name == "bgra" and sampled:
+                    texture = context.texture((width, height), 4)
+                    texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                    attachments.append(texture)
+                elif name == "bgra":
                     attachments.append(context.renderbuffer((width, height), components=4))
                 elif name == "depth":
                     texture = context.texture((width, height), 1, dtype="f4")
@@ -727,7 +744,7 @@ class GLRenderer:
                 color_attachments=attachments,
                 depth_attachment=context.depth_renderbuffer((width, height)),
             )
-            self.framebuffers[(width, height, outputs)] = framebuffer
+            self.framebuffers[(width, height, outputs, sampled)] = framebuffer
         return framebuffer
 
     def _in_view(
@@ -832,6 +849,7 @@ class GLRenderer:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
+        reduce_by: int = 1,
     ) -> PendingView:
         """The view drawn, its pixels on their way back (`gl_readback`: with `queued`, on a GPU,
         the caller draws its next views while they come; `PendingView.result` waits). Its
@@ -847,11 +865,20 @@ class GLRenderer:
         state, without syncing the bodies again (4 ms of a frame on llvmpipe). `depth_at`
         `(N, 2)` (column, row) pixels: where the renderer `gathers`, the depth is read at these
         alone, `(N,)`, in their order (the same floats as the whole image holds there); the
-        whole image elsewhere."""
+        whole image elsewhere. `reduce_by` k > 1: the colour alone (no depth, no ids), each
+        pixel the mean of k x k drawn pixels (`shaders/reduce.frag`), so that a view drawn at k
+        times the size it is read at comes back at that size: `width / k` x `height / k`, the
+        reduction done on the GPU and a k-th of the bytes read back."""
         import moderngl
 
         if look not in LOOKS:
             raise ValueError(f"look {look!r}: expected one of {', '.join(LOOKS)}")
+        reduced = reduce_by > 1
+        if reduced and (width % reduce_by or height % reduce_by):
+            raise ValueError(f"a {width}x{height} view cannot be reduced by {reduce_by}")
+        if reduced and (look == "labels" or segmentation or (depth_at is not None
+                                                              and len(depth_at))):  # fmt: skip
+            raise ValueError("a reduced view is its colour alone (no labels, ids or depth)")
         # drawn upside down (y flipped in clip space), so that OpenGL's bottom-up rows read out
         # top row first; the flip mirrors the winding, so the front faces turn clockwise
         flip = np.diag([1.0, -1.0, 1.0, 1.0])
@@ -871,7 +898,7 @@ class GLRenderer:
             # what a view writes: a camera's ids only when they are read (an attachment fewer
             # saved llvmpipe 8 ms of six cameras), a labels view no colour
             outputs = FRAMEBUFFER_OUTPUTS[look] if segmentation else FRAMEBUFFER_OUTPUTS[look][:2]
-            framebuffer = self._framebuffer(width, height, outputs)
+            framebuffer = self._framebuffer(width, height, outputs, sampled=reduced)
             framebuffer.use()
             clear = {"bgra": (*CLEAR_RGB[::-1], 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
             # the sky, drawn last wherever nothing else is, writes every output a camera's or
@@ -918,11 +945,14 @@ class GLRenderer:
                 self.context.depth_func = "<="
                 self.sky_array.render(moderngl.TRIANGLES, vertices=3)
                 self.context.depth_func = "<"
+            if reduced:  # the colour alone from here: the reduced framebuffer holds no more
+                framebuffer = self._reduce(framebuffer, width, height, reduce_by)
+                width, height, outputs = width // reduce_by, height // reduce_by, ("bgra",)
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
             # it (four bytes a pixel, BGRA): asking GL for three makes the driver convert on
             # the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
             gathered = None
-            if depth_at is not None and self.gathers:
+            if depth_at is not None and self.gathers and "depth" in outputs:
                 if self.gather is None:
                     self.gather = DepthGather(self.context)
                 gathered = self.gather.run(framebuffer.color_attachments[outputs.index("depth")],
@@ -936,7 +966,23 @@ class GLRenderer:
             )  # fmt: skip
             pixels = self.readback.read(framebuffer, reads, width, height, queued)
         return PendingView(self.context, pixels, width, height, "bgra" in outputs, segmentation,
-                           gathered)  # fmt: skip
+                           gathered, depth="depth" in outputs)  # fmt: skip
+
+    def _reduce(self, framebuffer, width: int, height: int, factor: int):
+        """A framebuffer of `width / factor` x `height / factor` holding the colour of
+        `framebuffer` (drawn, its colour a texture) reduced by `factor`: each pixel the mean of
+        the `factor` x `factor` pixels it covers (`shaders/reduce.frag`)."""
+        import moderngl
+
+        reduced = self._framebuffer(width // factor, height // factor, ("bgra",))
+        reduced.use()
+        self.context.disable(moderngl.DEPTH_TEST)
+        self.context.disable(moderngl.CULL_FACE)
+        framebuffer.color_attachments[0].use(location=REDUCE_TEXTURE_UNIT)
+        _set(self.reduce_program, "source", REDUCE_TEXTURE_UNIT)
+        _set(self.reduce_program, "factor", factor)
+        self.reduce_array.render(moderngl.TRIANGLES, vertices=3)
+        return reduced
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the
@@ -953,7 +999,7 @@ class GLRenderer:
             for array in self.arrays.values():
                 array.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
-                             self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
+                             self.reduce_array, self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
                              self.static_shadow_framebuffer, self.static_shadow_texture,
                              self.wear_texture, self.lamp_texture):  # fmt: skip
                 resource.release()

@@ -438,6 +438,7 @@ class World:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
+        reduce_by: int = 1,
     ) -> Callable[[], Image]:
         """The image drawn, returned by the function this returns: with the GL renderer on a
         GPU and `queued`, its pixels come back through pixel buffers while the caller draws its
@@ -454,7 +455,11 @@ class World:
         renderer's): the ego hidden from its cameras but placed with its pose (`place_ego`) is
         drawn too, where it stands: the top view of the cameras' state. `depth_at` `(N, 2)`
         (column, row of the image as drawn): the pixels whose depth the caller needs; the GL
-        renderer on a GPU reads the depth there alone (`Image.depth_samples`)."""
+        renderer on a GPU reads the depth there alone (`Image.depth_samples`). `reduce_by` k
+        (the GL renderer's): the colour alone, each pixel the mean of k x k drawn ones, at a
+        k-th of `width` and `height` (`GLRenderer.queue`)."""
+        if reduce_by > 1 and self.gl is None:
+            raise ValueError("a view reduced on the GPU (reduce_by) needs the GL renderer")
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -478,7 +483,8 @@ class World:
         drawn_width, drawn_height = self.drawn_size(width, height)
         if self.gl is not None:
             pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
-                                     far_m, look, casters_drawn, queued, depth_at)  # fmt: skip
+                                     far_m, look, casters_drawn, queued, depth_at,
+                                     reduce_by)  # fmt: skip
             if pending.gathered is None:
                 return lambda: Image(*pending.result())
 
