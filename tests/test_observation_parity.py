@@ -110,3 +110,39 @@ def test_planar_gives_the_same_bytes_for_a_bgra_read_as_for_its_rgb_copy(size) -
     assert np.array_equal(
         reference[0], cv2.resize(copy, size, interpolation=cv2.INTER_AREA)[..., 0]
     )
+
+
+def test_the_gpus_reduction_gives_the_cpus_bytes_in_rain_and_at_night(weathered_root: Path):
+    """On a GPU the observer's views are exposed and area-resized by the renderer's shaders
+    (`GLRenderer.reduces`, forced here on llvmpipe); where GL draws on the CPU, by OpenCV: with
+    the noise and streaks added after, the two give the same bytes (these clips' views reduce
+    by a whole factor, 2)."""
+    differences = []
+    for clip in ("synth_s0_c0006", "synth_s0_c0011"):
+        scenario = store.read_scenario(weathered_root, clip)
+        motion, traffic, ego = ego_motion(scenario), Traffic(scenario), scenario.ego
+        intersection_map = store.read_map(weathered_root, scenario.map_id)
+        with World(intersection_map, scenario, "auto") as world:
+            if world.renderer != "gl":
+                pytest.skip("the cheap path draws with the GL renderer (no EGL here)")
+            observer = SensorObserver(world, FRONT, SIZE, INPUT)
+            for frame in (0, FRAMES - 1):
+                state = VehicleState(
+                    float(motion.x_m[frame]), float(motion.y_m[frame]),
+                    float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]),
+                )  # fmt: skip
+                centre = np.array([ego.x_m[frame], ego.y_m[frame]])
+                poses = traffic.poses(frame, centre, state.yaw_rad, state.speed_mps,
+                                      tuple(motion.size_m[:2]))  # fmt: skip
+                signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
+                z = float(motion.z_m[frame])
+                views = []
+                for on_gpu in (False, True):
+                    world.gl.reduces = on_gpu
+                    views.append(observer.observe(frame, frame, state, z, poses, signals,
+                                                  centre)[0])  # fmt: skip
+                for camera in FRONT:
+                    cpu, gpu = (view[camera].astype(int) for view in views)
+                    differences.append(np.abs(gpu - cpu))
+    difference = np.concatenate([d.ravel() for d in differences])
+    assert difference.max() == 0  # the same bytes: a whole factor (2), no weight to round

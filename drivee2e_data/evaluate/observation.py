@@ -6,13 +6,11 @@ Two ways to the images, chosen by what the agent declares:
 - `image_size` alone: JPEG bytes per camera at that size, the collection's own path (the same
   bytes as the log where the pose is the logged one).
 - `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
-  to it): each camera is drawn at a whole multiple k of `input_size`, at least `SUPERSAMPLE`,
-  as many as fit the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8) that keeps
-  `SUPERSAMPLE` times `input_size` (the size the Dataset decodes the logged JPEG at before its
-  area resize), reduced to `input_size` on the GPU (each pixel the mean of k x k drawn ones),
-  its noise and rain made at the full size and averaged
-  (`sensors.camera.with_conditions_reduced`): planar RGB `(3, H, W)` uint8, no JPEG either
-  way, at a fraction of the pixels, and only the input's pixels read back.
+  to it): each camera is drawn at the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8)
+  that keeps at least `SUPERSAMPLE` times `input_size`, exposed and area-resized to
+  `input_size` on the GPU (only the input's pixels are read back), its noise and rain made at
+  the full size and averaged (`sensors.camera.render_reduced`): planar RGB `(3, H, W)` uint8,
+  no JPEG either way, at a fraction of the pixels.
   The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
   and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
   faint continuous line; drawn at the input size itself it would break into dashes where it
@@ -36,8 +34,8 @@ from drivee2e_data.sensors.camera import (
     NO_DEPTH,
     encode_jpeg,
     render,
+    render_reduced,
     with_conditions,
-    with_conditions_reduced,
 )
 from drivee2e_data.sensors.ego_state import se3
 from drivee2e_data.sensors.rig import IMAGE_HEIGHT, IMAGE_WIDTH
@@ -57,8 +55,8 @@ SUPERSAMPLE = 2
 class SensorObserver:
     """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
     agent whose training images were collected at `image_size` (width, height; None for
-    1600x900); with `input_size`, drawn small (a whole multiple of `input_size`, at least
-    `supersample`, reduced to it on the GPU) and served as the decoded pixels at that size
+    1600x900); with `input_size`, drawn small (at least `supersample` times `input_size`),
+    area-resized to it on the GPU and served as the decoded pixels at that size
     (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
 
     def __init__(
@@ -76,14 +74,10 @@ class SensorObserver:
         drawn = self.full_size
         if world.renderer != "gl":  # pybullet's renderers draw no weather: the JPEG path
             self.input_size = None
-        # each input pixel the mean of reduce_by x reduce_by drawn ones (on the GPU)
-        self.reduce_by = 1
         if self.input_size is not None:
-            width, height = self.input_size
-            factor = reduction(self.full_size, (supersample * width, supersample * height))
-            decoded = (self.full_size[0] // factor, self.full_size[1] // factor)
-            self.reduce_by = max(supersample, min(decoded[0] // width, decoded[1] // height))
-            drawn = (self.reduce_by * width, self.reduce_by * height)
+            wanted = (supersample * self.input_size[0], supersample * self.input_size[1])
+            factor = reduction(self.full_size, wanted)
+            drawn = (self.full_size[0] // factor, self.full_size[1] // factor)
         self.rig = configured_rig(SuiteOptions(cameras=cameras, image_size=self.full_size))
         self.drawn_rig = configured_rig(SuiteOptions(cameras=cameras, image_size=drawn))
 
@@ -108,12 +102,12 @@ class SensorObserver:
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images: dict[str, bytes | NDArray[np.uint8]] = {}
         for camera in self.drawn_rig.cameras:
-            view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH,
-                          reduce_by=self.reduce_by)  # fmt: skip
             if self.input_size is None:
+                view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
                 images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
             else:
-                rgb = with_conditions_reduced(world, view, frame, self.full_size)
+                rgb = render_reduced(world, camera, ego_to_world, self.input_size, frame,
+                                     self.full_size)  # fmt: skip
                 images[camera.name] = planar(rgb, self.input_size)
         points = None
         if self.with_lidar:

@@ -79,10 +79,18 @@ class Exposure:
     metered: float
 
 
+def meter_step(width: int) -> int:
+    """The pixels between two of the exposure meter's samples along a row (and a column) of an
+    image `width` wide: about `METER_COLUMNS` across. An image of those samples alone (every
+    step-th pixel from `step // 2`) is metered with a step of 1: the same samples."""
+    return max(1, round(width / METER_COLUMNS))
+
+
 def meter(rgb: NDArray[np.uint8]) -> NDArray[np.float32]:
     """The grey levels (luma) the exposure meter reads of an image: a grid of about
-    `METER_COLUMNS` pixels across, the same places of the view whatever size it is drawn at."""
-    step = max(1, round(rgb.shape[1] / METER_COLUMNS))
+    `METER_COLUMNS` pixels across (`meter_step`), the same places of the view whatever size it
+    is drawn at."""
+    step = meter_step(rgb.shape[1])
     sample = np.asarray(rgb[step // 2 :: step, step // 2 :: step], dtype=np.float32)
     return sample @ np.asarray(LUMA, dtype=np.float32)
 

@@ -70,7 +70,7 @@ FRAMEBUFFER_OUTPUTS = {
     "plain": ("bgra", "depth", "body"),
     "labels": ("depth", "body"),
 }
-# the box reduction's source (`queue`'s `reduce_by`): after the scene's three and the gather's
+# the area reduction's source (`queue`'s `reduce_to`): after the scene's three and the gather's
 REDUCE_TEXTURE_UNIT = 4
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
 # shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
@@ -321,11 +321,13 @@ class PendingView:
         segmentation: bool,
         gathered: Callable[[], NDArray[np.float32]] | None = None,
         depth: bool = True,
+        reduce: Callable[[NDArray[np.uint8]], NDArray[np.uint8]] | None = None,
     ) -> None:
         self.context, self.pixels = context, pixels
         self.width, self.height = width, height
         self.colour, self.segmentation = colour, segmentation
         self.gathered, self.depth = gathered, depth
+        self.reduce = reduce  # BGRA to BGRA at another size: a reduction left to the CPU
 
     def result(
         self,
@@ -339,7 +341,8 @@ class PendingView:
             # `camera.encode_jpeg` hands the BGRA to the encoder as it is (`gl_readback.bgra_under`;
             # a conversion to BGR before had cost 0.8 ms a camera here, its fresh 4 MB output
             # included)
-            rgb = arrays.pop(0)[..., 2::-1]
+            bgra = arrays.pop(0)
+            rgb = (bgra if self.reduce is None else self.reduce(bgra))[..., 2::-1]
         else:
             rgb = np.zeros((self.height, self.width, 3), np.uint8)
         depth_m = samples if samples is not None else arrays.pop(0) if self.depth else None
@@ -451,6 +454,10 @@ class GLRenderer:
             self.reduce_array = context.vertex_array(
                 self.reduce_program, [(self.sky_buffer, "2f", "in_corner")]
             )
+            self.sample_program = _program("reduce.vert", "sample.frag")
+            self.sample_array = context.vertex_array(
+                self.sample_program, [(self.sky_buffer, "2f", "in_corner")]
+            )
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
             self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -488,6 +495,10 @@ class GLRenderer:
         # 0.2 ms for ten thousand pixels of a 1600x900 view, llvmpipe)
         self.gathers = not rasterises_on_cpu()
         self.gather: DepthGather | None = None
+        # views exposed and area-resized on the GPU (`queue`'s `reduce_to`) on a GPU; where GL
+        # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
+        # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
+        self.reduces = not rasterises_on_cpu()
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -718,7 +729,7 @@ class GLRenderer:
         (`FRAMEBUFFER_OUTPUTS`, in the order of the shaders' output locations) and a depth
         buffer; made once per size and kind. The depth is a texture, which the gather pass
         reads (`queue`'s `depth_at`); so is the colour where `sampled` (the box reduction reads
-        it: `queue`'s `reduce_by`)."""
+        it: `queue`'s `reduce_to`)."""
         import moderngl
 
         framebuffer = self.framebuffers.get((width, height, outputs, sampled))
@@ -849,7 +860,9 @@ class GLRenderer:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
-        reduce_by: int = 1,
+        reduce_to: tuple[int, int] | None = None,
+        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
+        meter_step: int = 1,
     ) -> PendingView:
         """The view drawn, its pixels on their way back (`gl_readback`: with `queued`, on a GPU,
         the caller draws its next views while they come; `PendingView.result` waits). Its
@@ -865,17 +878,21 @@ class GLRenderer:
         state, without syncing the bodies again (4 ms of a frame on llvmpipe). `depth_at`
         `(N, 2)` (column, row) pixels: where the renderer `gathers`, the depth is read at these
         alone, `(N,)`, in their order (the same floats as the whole image holds there); the
-        whole image elsewhere. `reduce_by` k > 1: the colour alone (no depth, no ids), each
-        pixel the mean of k x k drawn pixels (`shaders/reduce.frag`), so that a view drawn at k
-        times the size it is read at comes back at that size: `width / k` x `height / k`, the
-        reduction done on the GPU and a k-th of the bytes read back."""
+        whole image elsewhere. `reduce_to` (width, height), no larger than the view: the colour
+        alone (no depth, no ids) comes back at that size, area-resized on the GPU
+        (`shaders/reduce.frag`: each pixel the mean of the drawn pixels under it, as OpenCV's
+        INTER_AREA), and only those pixels are read back; with `gain_of`, exposed first: the
+        view's pixels at every `meter_step`-th row and column (`rgb[s // 2 :: s, s // 2 ::
+        s]`, `shaders/sample.frag`) are read at once and handed to `gain_of`, and each drawn
+        pixel's levels are multiplied by the gain it returns, rounded and saturated (as
+        `conditions.expose`), before the reduction."""
         import moderngl
 
         if look not in LOOKS:
             raise ValueError(f"look {look!r}: expected one of {', '.join(LOOKS)}")
-        reduced = reduce_by > 1
-        if reduced and (width % reduce_by or height % reduce_by):
-            raise ValueError(f"a {width}x{height} view cannot be reduced by {reduce_by}")
+        reduced = reduce_to is not None
+        if reduced and not (0 < reduce_to[0] <= width and 0 < reduce_to[1] <= height):
+            raise ValueError(f"a {width}x{height} view cannot be reduced to {reduce_to}")
         if reduced and (look == "labels" or segmentation or (depth_at is not None
                                                               and len(depth_at))):  # fmt: skip
             raise ValueError("a reduced view is its colour alone (no labels, ids or depth)")
@@ -945,9 +962,17 @@ class GLRenderer:
                 self.context.depth_func = "<="
                 self.sky_array.render(moderngl.TRIANGLES, vertices=3)
                 self.context.depth_func = "<"
-            if reduced:  # the colour alone from here: the reduced framebuffer holds no more
-                framebuffer = self._reduce(framebuffer, width, height, reduce_by)
-                width, height, outputs = width // reduce_by, height // reduce_by, ("bgra",)
+            on_cpu = None
+            if reduced and self.reduces:  # the reduced framebuffer holds the colour alone
+                gain = 1.0
+                if gain_of is not None:
+                    gain = float(gain_of(self._samples(framebuffer, (width, height), meter_step)))
+                framebuffer = self._reduce(framebuffer, (width, height), reduce_to, gain)
+                (width, height), outputs = reduce_to, ("bgra",)
+            elif reduced:  # the whole colour read, then reduced as the GPU would
+                outputs = outputs[:1]
+                on_cpu = functools.partial(_reduced_on_cpu, size=reduce_to, gain_of=gain_of,
+                                           meter_step=meter_step)  # fmt: skip
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
             # it (four bytes a pixel, BGRA): asking GL for three makes the driver convert on
             # the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
@@ -966,21 +991,41 @@ class GLRenderer:
             )  # fmt: skip
             pixels = self.readback.read(framebuffer, reads, width, height, queued)
         return PendingView(self.context, pixels, width, height, "bgra" in outputs, segmentation,
-                           gathered, depth="depth" in outputs)  # fmt: skip
+                           gathered, depth="depth" in outputs, reduce=on_cpu)  # fmt: skip
 
-    def _reduce(self, framebuffer, width: int, height: int, factor: int):
-        """A framebuffer of `width / factor` x `height / factor` holding the colour of
-        `framebuffer` (drawn, its colour a texture) reduced by `factor`: each pixel the mean of
-        the `factor` x `factor` pixels it covers (`shaders/reduce.frag`)."""
+    def _samples(self, framebuffer, drawn: tuple[int, int], step: int) -> NDArray[np.uint8]:
+        """RGB `(h, w, 3)`: the colour of `framebuffer` (drawn at `drawn`, its colour a
+        texture) at every `step`-th row and column from `step // 2`, read at once."""
         import moderngl
 
-        reduced = self._framebuffer(width // factor, height // factor, ("bgra",))
+        size = (len(range(step // 2, drawn[0], step)), len(range(step // 2, drawn[1], step)))
+        samples = self._framebuffer(*size, ("bgra",))
+        samples.use()
+        self.context.disable(moderngl.DEPTH_TEST)
+        self.context.disable(moderngl.CULL_FACE)
+        framebuffer.color_attachments[0].use(location=REDUCE_TEXTURE_UNIT)
+        _set(self.sample_program, "source", REDUCE_TEXTURE_UNIT)
+        _set(self.sample_program, "step", step)
+        self.sample_array.render(moderngl.TRIANGLES, vertices=3)
+        pixels = self.readback.read(samples, (Read(0, 4, "f1"),), *size, queued=False)
+        return pixels.result()[0][..., 2::-1]
+
+    def _reduce(
+        self, framebuffer, drawn: tuple[int, int], size: tuple[int, int], gain: float = 1.0
+    ):
+        """A framebuffer of `size` (width, height) holding the colour of `framebuffer` (drawn
+        at `drawn`, its colour a texture) exposed by `gain` and area-resized: each pixel the
+        mean of the drawn pixels under it (`shaders/reduce.frag`)."""
+        import moderngl
+
+        reduced = self._framebuffer(size[0], size[1], ("bgra",))
         reduced.use()
         self.context.disable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
         framebuffer.color_attachments[0].use(location=REDUCE_TEXTURE_UNIT)
         _set(self.reduce_program, "source", REDUCE_TEXTURE_UNIT)
-        _set(self.reduce_program, "factor", factor)
+        _set(self.reduce_program, "scale", (drawn[0] / size[0], drawn[1] / size[1]))
+        _set(self.reduce_program, "gain", gain)
         self.reduce_array.render(moderngl.TRIANGLES, vertices=3)
         return reduced
 
@@ -999,7 +1044,7 @@ class GLRenderer:
             for array in self.arrays.values():
                 array.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
-                             self.reduce_array, self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
+                             self.reduce_array, self.sample_array, self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
                              self.static_shadow_framebuffer, self.static_shadow_texture,
                              self.wear_texture, self.lamp_texture):  # fmt: skip
                 resource.release()
@@ -1019,6 +1064,25 @@ def _program(vertex: str, fragment: str, defines: tuple[str, ...] = ()):
     draws with up to sixteen variants, and llvmpipe takes tens of milliseconds to compile one."""
     return _context().program(vertex_shader=shader_source(vertex),
                               fragment_shader=shader_source(fragment, defines))  # fmt: skip
+
+
+def _reduced_on_cpu(
+    bgra: NDArray[np.uint8],
+    size: tuple[int, int],
+    gain_of: Callable[[NDArray[np.uint8]], float] | None,
+    meter_step: int,
+) -> NDArray[np.uint8]:
+    """`queue`'s `reduce_to` on the CPU: a whole BGRA view `(H, W, 4)` exposed by the gain
+    `gain_of` gives for its pixels at every `meter_step`-th row and column (as RGB) and
+    area-resized to `size` (width, height), as `shaders/sample.frag` and `reduce.frag` do it."""
+    import cv2
+
+    if gain_of is not None:
+        start = meter_step // 2
+        gain = float(gain_of(bgra[start::meter_step, start::meter_step, 2::-1]))
+        if gain != 1.0:
+            bgra = cv2.convertScaleAbs(bgra, alpha=gain)
+    return cv2.resize(bgra, tuple(size), interpolation=cv2.INTER_AREA)
 
 
 def _wear_texture(context, wear: WearRaster | None):

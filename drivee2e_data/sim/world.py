@@ -438,7 +438,9 @@ class World:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
-        reduce_by: int = 1,
+        reduce_to: tuple[int, int] | None = None,
+        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
+        meter_step: int = 1,
     ) -> Callable[[], Image]:
         """The image drawn, returned by the function this returns: with the GL renderer on a
         GPU and `queued`, its pixels come back through pixel buffers while the caller draws its
@@ -455,11 +457,12 @@ class World:
         renderer's): the ego hidden from its cameras but placed with its pose (`place_ego`) is
         drawn too, where it stands: the top view of the cameras' state. `depth_at` `(N, 2)`
         (column, row of the image as drawn): the pixels whose depth the caller needs; the GL
-        renderer on a GPU reads the depth there alone (`Image.depth_samples`). `reduce_by` k
-        (the GL renderer's): the colour alone, each pixel the mean of k x k drawn ones, at a
-        k-th of `width` and `height` (`GLRenderer.queue`)."""
-        if reduce_by > 1 and self.gl is None:
-            raise ValueError("a view reduced on the GPU (reduce_by) needs the GL renderer")
+        renderer on a GPU reads the depth there alone (`Image.depth_samples`). `reduce_to`
+        (width, height; the GL renderer's): the colour alone, area-resized to that size on the
+        GPU, exposed first by the gain `gain_of` gives for the view's pixels at every
+        `meter_step`-th row and column (`GLRenderer.queue`)."""
+        if reduce_to is not None and self.gl is None:
+            raise ValueError("a view reduced on the GPU (reduce_to) needs the GL renderer")
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -484,7 +487,7 @@ class World:
         if self.gl is not None:
             pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
                                      far_m, look, casters_drawn, queued, depth_at,
-                                     reduce_by)  # fmt: skip
+                                     reduce_to, gain_of, meter_step)  # fmt: skip
             if pending.gathered is None:
                 return lambda: Image(*pending.result())
 

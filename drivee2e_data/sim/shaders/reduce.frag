@@ -1,20 +1,29 @@
 #version 330
-// A view reduced by a whole factor: each pixel the mean of the factor x factor texels of the
-// drawn view it covers, as an area resize by that factor averages them (OpenCV's INTER_AREA).
-// Written to an 8-bit target, the mean is rounded to the nearest level; with an odd factor no
-// mean lies halfway between two levels, so the bytes are those of the exact mean rounded.
-// Uniforms: source (the drawn view's colour, texel for texel), factor (its pixels per output
-// pixel along each axis).
+// A view exposed and reduced on the GPU as the CPU path does it (`conditions.expose`, then
+// OpenCV's INTER_AREA): each drawn pixel's 8-bit levels times `gain`, rounded and saturated,
+// then each output pixel the mean of the drawn pixels under its area, those it covers in part
+// weighted by the part, rounded to the nearest level.
+// Uniforms: source (the drawn view's colour, texel for texel), scale (drawn pixels per output
+// pixel along x and y, 1 or more), gain (the camera's exposure; 1: as drawn).
 uniform sampler2D source;
-uniform int factor;
+uniform vec2 scale;
+uniform float gain;
 out vec4 colour;
 void main() {
-    ivec2 first = ivec2(gl_FragCoord.xy) * factor;
+    vec2 low = floor(gl_FragCoord.xy) * scale;  // the output pixel's area, in drawn pixels
+    vec2 high = low + scale;
+    ivec2 first = ivec2(floor(low));
+    ivec2 last = ivec2(ceil(high)) - 1;
     vec4 total = vec4(0.0);
-    for (int row = 0; row < factor; ++row) {
-        for (int column = 0; column < factor; ++column) {
-            total += texelFetch(source, first + ivec2(column, row), 0);
+    for (int row = first.y; row <= last.y; ++row) {
+        float height = min(float(row + 1), high.y) - max(float(row), low.y);
+        for (int column = first.x; column <= last.x; ++column) {
+            float width = min(float(column + 1), high.x) - max(float(column), low.x);
+            vec4 levels = min(roundEven(texelFetch(source, ivec2(column, row), 0) * (255.0 * gain)),
+                              vec4(255.0));
+            total += (width * height) * levels;
         }
     }
-    colour = total / float(factor * factor);
+    // halves rounded up, as OpenCV's area resize by a whole factor rounds them
+    colour = floor(total / (scale.x * scale.y) + 0.5) / 255.0;
 }

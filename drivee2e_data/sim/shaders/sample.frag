@@ -1,0 +1,11 @@
+#version 330
+// Every step-th pixel of a drawn view, from the middle of the first step (numpy's
+// `rgb[step // 2 :: step, step // 2 :: step]`): the pixels a camera's exposure meter reads.
+// Uniforms: source (the drawn view's colour, texel for texel), step (drawn pixels between two
+// samples along x and y).
+uniform sampler2D source;
+uniform int step;
+out vec4 colour;
+void main() {
+    colour = texelFetch(source, ivec2(gl_FragCoord.xy) * step + step / 2, 0);
+}
