@@ -228,48 +228,52 @@ def test_depth_gathered_at_chosen_pixels_is_the_whole_depth_there(site):
 
 
 @pytest.mark.parametrize("on_gpu", [True, False])
-def test_a_reduced_view_is_the_view_drawn_exposed_and_area_resized(site, on_gpu):
-    """The closed-loop observer's views come back exposed and area-resized (`reduce_to`,
-    `gain_of`): on a GPU by two passes over the drawn view (forced here on llvmpipe), where GL
-    draws on the CPU by OpenCV. The gain is asked for the drawn view's own pixels at the
-    meter's places, and each pixel is the byte OpenCV's exposure and area resize give of the
-    whole view drawn: the same bytes on the CPU, and on the GPU by a whole factor (halves
-    rounded up, as OpenCV does there); by 3.125 (800x450 to 256x144, TCP's) within a level on
-    under 1% of the pixels. A size larger than the view, or ids or depth with it, are
-    refused."""
+def test_reduced_views_are_the_views_drawn_exposed_and_area_resized(site, on_gpu):
+    """The closed-loop observer's cameras come back exposed and area-resized, all drawn before
+    any is read (`World.render_reduced`): on a GPU by two shader passes (forced here on
+    llvmpipe), where GL draws on the CPU by OpenCV. Each view's gain is asked for its own
+    pixels at the meter's places, and each pixel is the byte OpenCV's exposure and area resize
+    give of the whole view drawn: the same bytes on the CPU, and on the GPU by a whole factor
+    (halves rounded up, as OpenCV does there); by 3.125 (800x450 to 256x144, TCP's) within a
+    level on under 1% of the pixels. Views smaller than the size asked are enlarged by
+    OpenCV's area resize, as the Dataset enlarges a small logged image."""
     import cv2
 
     intersection_map, scenario = site
     with World(intersection_map, scenario, renderer="gl") as world:
         world.gl.reduces = on_gpu
         eye = _eye_at(world, 20)
-        target = eye + 10 * np.array([1.0, 0.0, 0.0])
-        # (drawn, size, gain, most levels off and share of pixels off on the GPU): by 3.125,
-        # weighted sums in another order than OpenCV's may round the other way
-        cases = (((288, 162), (96, 54), 1.4, 0, 0.0), ((192, 108), (96, 54), 1.0, 0, 0.0),
-                 ((800, 450), (256, 144), 0.8, 1, 0.01))  # fmt: skip
-        for drawn, size, gain, tolerance, share in cases:
-            whole = world.render(eye, target, *drawn, 40.0, near_m=0.5)
+        # (drawn, size, most levels off and share of pixels off on the GPU): by 3.125, weighted
+        # sums in another order than OpenCV's may round the other way
+        cases = (((288, 162), (96, 54), 0, 0.0), ((192, 108), (96, 54), 0, 0.0),
+                 ((800, 450), (256, 144), 1, 0.01))  # fmt: skip
+        gains = (1.4, 1.0, 0.8)  # one per view: three views at once, yawed apart
+        targets = [eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0]) for yaw in (0, 2, 4)]
+        for drawn, size, tolerance, share in cases:
+            wholes = [world.render(eye, target, *drawn, 40.0, near_m=0.5) for target in targets]
             metered = []
 
-            def gain_of(samples: np.ndarray, gain=gain, metered=metered) -> float:
+            def gain_of(samples: np.ndarray, metered=metered) -> float:
                 metered.append(np.array(samples))
-                return gain
+                return gains[len(metered) - 1]
 
-            reduced = world.render(eye, target, *drawn, 40.0, near_m=0.5, reduce_to=size,
-                                   gain_of=gain_of, meter_step=4)  # fmt: skip
-            assert len(metered) == 1 and np.array_equal(metered[0], whole.rgb[2::4, 2::4])
-            exposed = cv2.convertScaleAbs(np.ascontiguousarray(whole.rgb), alpha=gain)
-            expected = cv2.resize(exposed, size, interpolation=cv2.INTER_AREA)
-            assert reduced.rgb.shape == (size[1], size[0], 3) and reduced.depth_m is None
-            difference = np.abs(reduced.rgb.astype(int) - expected.astype(int))
-            assert difference.max() <= (tolerance if on_gpu else 0), drawn
-            assert (difference > 0).mean() <= share, drawn
-        assert len(np.unique(expected.reshape(-1, 3), axis=0)) > 500  # a street, not a blank
-        with pytest.raises(ValueError, match="cannot be reduced"):
-            world.render(eye, target, 96, 54, 40.0, reduce_to=(100, 54))
-        with pytest.raises(ValueError, match="colour alone"):
-            world.render(eye, target, 192, 108, 40.0, segmentation=True, reduce_to=(96, 54))
+            views = [(eye, target, *drawn, 40.0) for target in targets]
+            reduced = world.render_reduced(views, size, gain_of, meter_step=4, near_m=0.5)
+            for whole, gain, samples, rgb in zip(wholes, gains, metered, reduced, strict=True):
+                assert np.array_equal(samples, whole.rgb[2::4, 2::4])
+                exposed = cv2.convertScaleAbs(np.ascontiguousarray(whole.rgb), alpha=gain)
+                expected = cv2.resize(exposed, size, interpolation=cv2.INTER_AREA)
+                assert rgb.shape == (size[1], size[0], 3)
+                difference = np.abs(rgb.astype(int) - expected.astype(int))
+                assert difference.max() <= (tolerance if on_gpu else 0), drawn
+                assert (difference > 0).mean() <= share, drawn
+                assert len(np.unique(expected.reshape(-1, 3), axis=0)) > 200  # not a blank
+        whole = world.render(eye, targets[0], 96, 54, 40.0, near_m=0.5)
+        (enlarged,) = world.render_reduced([(eye, targets[0], 96, 54, 40.0)], (128, 72),
+                                           near_m=0.5)  # fmt: skip
+        expected = cv2.resize(np.ascontiguousarray(whole.rgb), (128, 72),
+                              interpolation=cv2.INTER_AREA)  # fmt: skip
+        assert np.array_equal(enlarged, expected)
 
 
 def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):

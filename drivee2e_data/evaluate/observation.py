@@ -101,14 +101,14 @@ class SensorObserver:
         world.show({p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}, signals, frame)
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images: dict[str, bytes | NDArray[np.uint8]] = {}
-        for camera in self.drawn_rig.cameras:
-            if self.input_size is None:
+        if self.input_size is None:
+            for camera in self.drawn_rig.cameras:
                 view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH)
                 images[camera.name] = encode_jpeg(with_conditions(world, view, frame), JPEG_QUALITY)
-            else:
-                rgb = render_reduced(world, camera, ego_to_world, self.input_size, frame,
-                                     self.full_size)  # fmt: skip
-                images[camera.name] = planar(rgb, self.input_size)
+        elif self.drawn_rig.cameras:
+            reduced = render_reduced(world, self.drawn_rig.cameras, ego_to_world, self.input_size,
+                                     frame, self.full_size)  # fmt: skip
+            images = {name: planar(rgb, self.input_size) for name, rgb in reduced.items()}
         points = None
         if self.with_lidar:
             sweep = lidar.sweep(

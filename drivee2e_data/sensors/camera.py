@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,23 +93,16 @@ def render(
     ego_to_world: NDArray[np.float64],
     mask: bool = True,
     depth_at: NDArray[np.int32] | None = None,
-    reduce_to: tuple[int, int] | None = None,
-    gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
-    meter_step: int = 1,
 ) -> CameraFrame:
     """The camera's view at the world's current frame (the rig's cameras are level).
     `depth_at` `(N, 2)` (column, row as drawn): the pixels whose depth is needed, read alone
-    where the renderer can (`CameraFrame.depth_samples`). `reduce_to` (width, height; the GL
-    renderer's): drawn at the camera's size and area-resized to that size on the GPU, exposed
-    first by the gain `gain_of` gives for the view's pixels at every `meter_step`-th row and
-    column; the colour alone (`World.render`)."""
+    where the renderer can (`CameraFrame.depth_samples`)."""
     pose = camera_to_world(camera, ego_to_world)
     eye = pose[:3, 3]
     target = eye + 10.0 * pose[:3, 2]
     image = world.render(
         eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask,
-        near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at, reduce_to=reduce_to,
-        gain_of=gain_of, meter_step=meter_step,
+        near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at,
     )  # fmt: skip
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation,
@@ -167,35 +160,45 @@ def with_conditions(
 
 def render_reduced(
     world: World,
-    camera: Camera,
+    cameras: Sequence[Camera],
     ego_to_world: NDArray[np.float64],
     size: tuple[int, int],
     frame: int,
     full_size: tuple[int, int],
-) -> NDArray[np.uint8]:
-    """The camera's view (drawn at its size, smaller than a camera of `full_size`: width,
-    height) under the clip's weather and light as that camera's image would show after an area
-    reduction to `size`: exposed and area-resized on the GPU (`render`'s `reduce_to`; the
-    exposure metered on the drawn view's own pixels at the meter's places, `meter_step`, the
-    only ones read back besides `size`'s, and applied to each drawn pixel before the
-    reduction, as the logged image saturates before it is averaged), then the low-light noise and the rain's streaks made at the full size
-    with the same seed as collection (`with_conditions`) and averaged over each pixel
-    (`conditions.reduced_sensor_effects`). The closed-loop observer's cheap path: what a
+) -> dict[str, NDArray[np.uint8]]:
+    """Per camera of `cameras` (each drawn at its size, smaller than a camera of `full_size`:
+    width, height) its view under the clip's weather and light as that camera's image would
+    show after an area reduction to `size`, RGB `(H, W, 3)`: exposed and area-resized by the
+    GL renderer (`World.render_reduced`; the exposure metered at the meter's places of the view
+    as drawn and applied to each drawn pixel before the reduction, as the logged image
+    saturates before it is averaged), then the low-light noise and the rain's streaks made at
+    the full size with the same seed as collection (`with_conditions`) and averaged over each
+    pixel (`conditions.reduced_sensor_effects`). The closed-loop observer's cheap path: what a
     model reading images at a fraction of the logged size sees, without drawing, weathering,
-    encoding and decoding the full image, and with only `size`'s pixels read back."""
+    encoding and decoding the full image; on a GPU only `size`'s pixels (and the meter's) are
+    read back."""
     if world.renderer != "gl":
         raise ValueError("a reduced view needs the GL renderer (it draws the weather itself)")
     lighting, scenario = world.lighting, world.scenario
-    view = render(world, camera, ego_to_world, mask=False, depth_at=NO_DEPTH, reduce_to=size,
-                  gain_of=lambda samples: exposure(samples, lighting).gain,
-                  meter_step=meter_step(camera.width))  # fmt: skip
-    return reduced_sensor_effects(
-        view.rgb,
-        scenario.conditions,
-        lighting,
-        noise_seed(scenario.scenario_id, frame, camera),
-        (full_size[1], full_size[0]),
-    )
+    views = []
+    for camera in cameras:
+        pose = camera_to_world(camera, ego_to_world)
+        views.append((pose[:3, 3], pose[:3, 3] + 10.0 * pose[:3, 2], camera.width, camera.height,
+                      camera.vertical_fov_deg))  # fmt: skip
+    widths = {camera.width for camera in cameras}
+    step = meter_step(widths.pop()) if len(widths) == 1 else 1
+    if widths:
+        raise ValueError("the cameras of one reduced draw share one size")
+    reduced = world.render_reduced(views, size, lambda samples: exposure(samples, lighting).gain,
+                                   step, NEAR_M, FAR_M)  # fmt: skip
+    images = {}
+    for camera, rgb in zip(cameras, reduced, strict=True):
+        seed = noise_seed(scenario.scenario_id, frame, camera)
+        full_shape = (full_size[1], full_size[0])
+        images[camera.name] = reduced_sensor_effects(
+            rgb, scenario.conditions, lighting, seed, full_shape
+        )
+    return images
 
 
 def encode_jpeg(rgb: NDArray[np.uint8], quality: int = 90) -> bytes:

@@ -70,7 +70,7 @@ FRAMEBUFFER_OUTPUTS = {
     "plain": ("bgra", "depth", "body"),
     "labels": ("depth", "body"),
 }
-# the area reduction's source (`queue`'s `reduce_to`): after the scene's three and the gather's
+# the area reduction's source (`GLRenderer.reduced_views`): after the scene's three and the gather's
 REDUCE_TEXTURE_UNIT = 4
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
 # shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
@@ -308,8 +308,7 @@ class SceneLights:
 class PendingView:
     """A view drawn whose pixels may still be on their way from the GPU (`GLRenderer.queue`);
     `result` waits for them: RGB `(H, W, 3)`, depth in metres `(H, W)` (or `(N,)` at the pixels
-    gathered; None where not drawn: a reduced view) and the body ids `(H, W)` (-1 for none)
-    where they were asked for."""
+    gathered) and the body ids `(H, W)` (-1 for none) where they were asked for."""
 
     def __init__(
         self,
@@ -320,18 +319,13 @@ class PendingView:
         colour: bool,
         segmentation: bool,
         gathered: Callable[[], NDArray[np.float32]] | None = None,
-        depth: bool = True,
-        reduce: Callable[[NDArray[np.uint8]], NDArray[np.uint8]] | None = None,
     ) -> None:
         self.context, self.pixels = context, pixels
         self.width, self.height = width, height
         self.colour, self.segmentation = colour, segmentation
-        self.gathered, self.depth = gathered, depth
-        self.reduce = reduce  # BGRA to BGRA at another size: a reduction left to the CPU
+        self.gathered = gathered
 
-    def result(
-        self,
-    ) -> tuple[NDArray[np.uint8], NDArray[np.float32] | None, NDArray[np.int32] | None]:
+    def result(self) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
         with current(self.context):
             arrays = list(self.pixels.result())
             # the depth at the pixels asked for (`GLRenderer.queue`'s `depth_at`), if gathered
@@ -341,11 +335,10 @@ class PendingView:
             # `camera.encode_jpeg` hands the BGRA to the encoder as it is (`gl_readback.bgra_under`;
             # a conversion to BGR before had cost 0.8 ms a camera here, its fresh 4 MB output
             # included)
-            bgra = arrays.pop(0)
-            rgb = (bgra if self.reduce is None else self.reduce(bgra))[..., 2::-1]
+            rgb = arrays.pop(0)[..., 2::-1]
         else:
             rgb = np.zeros((self.height, self.width, 3), np.uint8)
-        depth_m = samples if samples is not None else arrays.pop(0) if self.depth else None
+        depth_m = samples if samples is not None else arrays.pop(0)
         body = None
         if self.segmentation:
             body = arrays.pop(0).astype(np.int32)
@@ -495,7 +488,7 @@ class GLRenderer:
         # 0.2 ms for ten thousand pixels of a 1600x900 view, llvmpipe)
         self.gathers = not rasterises_on_cpu()
         self.gather: DepthGather | None = None
-        # views exposed and area-resized on the GPU (`queue`'s `reduce_to`) on a GPU; where GL
+        # views exposed and area-resized on the GPU (`reduced_views`) on a GPU; where GL
         # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
         # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
         self.reduces = not rasterises_on_cpu()
@@ -723,16 +716,17 @@ class GLRenderer:
         return vertices
 
     def _framebuffer(
-        self, width: int, height: int, outputs: tuple[str, ...], sampled: bool = False
+        self, width: int, height: int, outputs: tuple[str, ...], sampled: bool = False, slot=0
     ):
         """A framebuffer of `width` x `height` with one colour attachment per name in `outputs`
         (`FRAMEBUFFER_OUTPUTS`, in the order of the shaders' output locations) and a depth
         buffer; made once per size and kind. The depth is a texture, which the gather pass
-        reads (`queue`'s `depth_at`); so is the colour where `sampled` (the box reduction reads
-        it: `queue`'s `reduce_to`)."""
+        reads (`queue`'s `depth_at`); so is the colour where `sampled` (`slot`: one of several
+        such framebuffers of a size, drawn before any is reduced; the area reduction reads
+        it: `reduced_views`)."""
         import moderngl
 
-        framebuffer = self.framebuffers.get((width, height, outputs, sampled))
+        framebuffer = self.framebuffers.get((width, height, outputs, sampled, slot))
         if framebuffer is None:
             context = self.context
             attachments = []
@@ -755,7 +749,7 @@ class GLRenderer:
                 color_attachments=attachments,
                 depth_attachment=context.depth_renderbuffer((width, height)),
             )
-            self.framebuffers[(width, height, outputs, sampled)] = framebuffer
+            self.framebuffers[(width, height, outputs, sampled, slot)] = framebuffer
         return framebuffer
 
     def _in_view(
@@ -860,9 +854,6 @@ class GLRenderer:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
-        reduce_to: tuple[int, int] | None = None,
-        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
-        meter_step: int = 1,
     ) -> PendingView:
         """The view drawn, its pixels on their way back (`gl_readback`: with `queued`, on a GPU,
         the caller draws its next views while they come; `PendingView.result` waits). Its
@@ -878,106 +869,17 @@ class GLRenderer:
         state, without syncing the bodies again (4 ms of a frame on llvmpipe). `depth_at`
         `(N, 2)` (column, row) pixels: where the renderer `gathers`, the depth is read at these
         alone, `(N,)`, in their order (the same floats as the whole image holds there); the
-        whole image elsewhere. `reduce_to` (width, height), no larger than the view: the colour
-        alone (no depth, no ids) comes back at that size, area-resized on the GPU
-        (`shaders/reduce.frag`: each pixel the mean of the drawn pixels under it, as OpenCV's
-        INTER_AREA), and only those pixels are read back; with `gain_of`, exposed first: the
-        view's pixels at every `meter_step`-th row and column (`rgb[s // 2 :: s, s // 2 ::
-        s]`, `shaders/sample.frag`) are read at once and handed to `gain_of`, and each drawn
-        pixel's levels are multiplied by the gain it returns, rounded and saturated (as
-        `conditions.expose`), before the reduction."""
-        import moderngl
-
+        whole image elsewhere."""
         if look not in LOOKS:
             raise ValueError(f"look {look!r}: expected one of {', '.join(LOOKS)}")
-        reduced = reduce_to is not None
-        if reduced and not (0 < reduce_to[0] <= width and 0 < reduce_to[1] <= height):
-            raise ValueError(f"a {width}x{height} view cannot be reduced to {reduce_to}")
-        if reduced and (look == "labels" or segmentation or (depth_at is not None
-                                                              and len(depth_at))):  # fmt: skip
-            raise ValueError("a reduced view is its colour alone (no labels, ids or depth)")
-        # drawn upside down (y flipped in clip space), so that OpenGL's bottom-up rows read out
-        # top row first; the flip mirrors the winding, so the front faces turn clockwise
-        flip = np.diag([1.0, -1.0, 1.0, 1.0])
-        view_matrix = np.asarray(view, dtype=np.float64).reshape(4, 4).T
-        projection_matrix = flip @ np.asarray(projection, dtype=np.float64).reshape(4, 4).T
-        matrix = projection_matrix @ view_matrix
-        camera_position = -view_matrix[:3, :3].T @ view_matrix[:3, 3]
-        shader_look = self.look if look == "camera" else self.look.plain()
         with current(self.context):
-            shadows = look != "labels" and shader_look.shadows
-            focus = np.round(np.asarray(self.lights.focus_xy_m) / SHADOW_FOCUS_STEP_M)
-            sun_matrix = shadow_matrix(shader_look.light_direction, focus * SHADOW_FOCUS_STEP_M)
-            key = self.synced if self.lights.shadow_key is None else self.lights.shadow_key
-            if shadows and self.shadowed != key:
-                self._shadow_pass(sun_matrix)
-                self.shadowed = key
-            # what a view writes: a camera's ids only when they are read (an attachment fewer
-            # saved llvmpipe 8 ms of six cameras), a labels view no colour
-            outputs = FRAMEBUFFER_OUTPUTS[look] if segmentation else FRAMEBUFFER_OUTPUTS[look][:2]
-            framebuffer = self._framebuffer(width, height, outputs, sampled=reduced)
-            framebuffer.use()
-            clear = {"bgra": (*CLEAR_RGB[::-1], 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
-            # the sky, drawn last wherever nothing else is, writes every output a camera's or
-            # the top view's pixel holds (colour, depth far_m, body 0): only a labels view,
-            # without a sky, has its attachments cleared (clearing them cost llvmpipe 0.7 ms a
-            # 1600x900 view)
-            cleared = outputs if look == "labels" else ()
-            for attachment, name in enumerate(cleared):
-                framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(len(outputs)))
-                framebuffer.clear(*clear[name], depth=1.0)
-            if not cleared:
-                framebuffer.color_mask = ((False,) * 4,) * len(outputs)
-                framebuffer.clear(depth=1.0)
-            framebuffer.color_mask = ((True,) * 4,) * len(outputs)
-            self.context.front_face = "cw"
-            if look == "labels":
-                self.context.enable(moderngl.DEPTH_TEST)
-                self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                self._draw_geometry("labels", matrix, camera_position)
-            else:
-                # shadows, night, wet and fog are compiled in: the variant the look needs
-                variant = scene_variant(shader_look)
-                if shader_look.lamps_on:
-                    self._light_texture(shader_look)
-                groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
-                if not casters_drawn:
-                    groups.discard(SHADOW_ONLY)
-                defines = {self._scene_defines(group, variant) for group in groups}
-                programs = [self._scene_program(key) for key in sorted(defines)]
-                self._apply_look(programs, shader_look, camera_position, far_m,
-                                 {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
-                rotation_only = view_matrix.copy()
-                rotation_only[:3, 3] = 0.0
-                inverse = np.linalg.inv(projection_matrix @ rotation_only)
-                _set_matrix(self.sky_program, "inverse_view_projection", inverse)
-                self.context.enable(moderngl.DEPTH_TEST)
-                self.shadow_texture.use(location=0)
-                self.wear_texture.use(location=1)
-                self.lamp_texture.use(location=2)
-                self._draw_geometry(variant, matrix, camera_position, casters_drawn)
-                # the sky last, on the far plane, where nothing was drawn: the depth test spares
-                # shading the sky behind the scene
-                self.context.disable(moderngl.CULL_FACE)
-                self.context.depth_func = "<="
-                self.sky_array.render(moderngl.TRIANGLES, vertices=3)
-                self.context.depth_func = "<"
-            on_cpu = None
-            if reduced and self.reduces:  # the reduced framebuffer holds the colour alone
-                gain = 1.0
-                if gain_of is not None:
-                    gain = float(gain_of(self._samples(framebuffer, (width, height), meter_step)))
-                framebuffer = self._reduce(framebuffer, (width, height), reduce_to, gain)
-                (width, height), outputs = reduce_to, ("bgra",)
-            elif reduced:  # the whole colour read, then reduced as the GPU would
-                outputs = outputs[:1]
-                on_cpu = functools.partial(_reduced_on_cpu, size=reduce_to, gain_of=gain_of,
-                                           meter_step=meter_step)  # fmt: skip
+            framebuffer, outputs = self._draw(view, projection, width, height, segmentation,
+                                              far_m, look, casters_drawn)  # fmt: skip
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
             # it (four bytes a pixel, BGRA): asking GL for three makes the driver convert on
             # the CPU (llvmpipe: 0.79 ms a 1600x900 image, against 0.20 for both)
             gathered = None
-            if depth_at is not None and self.gathers and "depth" in outputs:
+            if depth_at is not None and self.gathers:
                 if self.gather is None:
                     self.gather = DepthGather(self.context)
                 gathered = self.gather.run(framebuffer.color_attachments[outputs.index("depth")],
@@ -991,11 +893,141 @@ class GLRenderer:
             )  # fmt: skip
             pixels = self.readback.read(framebuffer, reads, width, height, queued)
         return PendingView(self.context, pixels, width, height, "bgra" in outputs, segmentation,
-                           gathered, depth="depth" in outputs, reduce=on_cpu)  # fmt: skip
+                           gathered)  # fmt: skip
 
-    def _samples(self, framebuffer, drawn: tuple[int, int], step: int) -> NDArray[np.uint8]:
-        """RGB `(h, w, 3)`: the colour of `framebuffer` (drawn at `drawn`, its colour a
-        texture) at every `step`-th row and column from `step // 2`, read at once."""
+    def _draw(
+        self,
+        view: Sequence[float],
+        projection: Sequence[float],
+        width: int,
+        height: int,
+        segmentation: bool,
+        far_m: float,
+        look: str = "camera",
+        casters_drawn: bool = False,
+        sampled: bool = False,
+        slot: int = 0,
+    ) -> tuple[object, tuple[str, ...]]:
+        """The view drawn (`queue`'s arguments) into the framebuffer of its size and outputs
+        (`_framebuffer`'s `sampled` and `slot`), and those outputs; the context current."""
+        import moderngl
+
+        # drawn upside down (y flipped in clip space), so that OpenGL's bottom-up rows read out
+        # top row first; the flip mirrors the winding, so the front faces turn clockwise
+        flip = np.diag([1.0, -1.0, 1.0, 1.0])
+        view_matrix = np.asarray(view, dtype=np.float64).reshape(4, 4).T
+        projection_matrix = flip @ np.asarray(projection, dtype=np.float64).reshape(4, 4).T
+        matrix = projection_matrix @ view_matrix
+        camera_position = -view_matrix[:3, :3].T @ view_matrix[:3, 3]
+        shader_look = self.look if look == "camera" else self.look.plain()
+        shadows = look != "labels" and shader_look.shadows
+        focus = np.round(np.asarray(self.lights.focus_xy_m) / SHADOW_FOCUS_STEP_M)
+        sun_matrix = shadow_matrix(shader_look.light_direction, focus * SHADOW_FOCUS_STEP_M)
+        key = self.synced if self.lights.shadow_key is None else self.lights.shadow_key
+        if shadows and self.shadowed != key:
+            self._shadow_pass(sun_matrix)
+            self.shadowed = key
+        # what a view writes: a camera's ids only when they are read (an attachment fewer
+        # saved llvmpipe 8 ms of six cameras), a labels view no colour
+        outputs = FRAMEBUFFER_OUTPUTS[look] if segmentation else FRAMEBUFFER_OUTPUTS[look][:2]
+        framebuffer = self._framebuffer(width, height, outputs, sampled, slot)
+        framebuffer.use()
+        clear = {"bgra": (*CLEAR_RGB[::-1], 1.0), "depth": (far_m,) * 4, "body": (0.0,) * 4}
+        # the sky, drawn last wherever nothing else is, writes every output a camera's or
+        # the top view's pixel holds (colour, depth far_m, body 0): only a labels view,
+        # without a sky, has its attachments cleared (clearing them cost llvmpipe 0.7 ms a
+        # 1600x900 view)
+        cleared = outputs if look == "labels" else ()
+        for attachment, name in enumerate(cleared):
+            framebuffer.color_mask = tuple((k == attachment,) * 4 for k in range(len(outputs)))
+            framebuffer.clear(*clear[name], depth=1.0)
+        if not cleared:
+            framebuffer.color_mask = ((False,) * 4,) * len(outputs)
+            framebuffer.clear(depth=1.0)
+        framebuffer.color_mask = ((True,) * 4,) * len(outputs)
+        self.context.front_face = "cw"
+        if look == "labels":
+            self.context.enable(moderngl.DEPTH_TEST)
+            self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+            self._draw_geometry("labels", matrix, camera_position)
+        else:
+            # shadows, night, wet and fog are compiled in: the variant the look needs
+            variant = scene_variant(shader_look)
+            if shader_look.lamps_on:
+                self._light_texture(shader_look)
+            groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
+            if not casters_drawn:
+                groups.discard(SHADOW_ONLY)
+            defines = {self._scene_defines(group, variant) for group in groups}
+            programs = [self._scene_program(key) for key in sorted(defines)]
+            self._apply_look(programs, shader_look, camera_position, far_m,
+                             {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
+            rotation_only = view_matrix.copy()
+            rotation_only[:3, 3] = 0.0
+            inverse = np.linalg.inv(projection_matrix @ rotation_only)
+            _set_matrix(self.sky_program, "inverse_view_projection", inverse)
+            self.context.enable(moderngl.DEPTH_TEST)
+            self.shadow_texture.use(location=0)
+            self.wear_texture.use(location=1)
+            self.lamp_texture.use(location=2)
+            self._draw_geometry(variant, matrix, camera_position, casters_drawn)
+            # the sky last, on the far plane, where nothing was drawn: the depth test spares
+            # shading the sky behind the scene
+            self.context.disable(moderngl.CULL_FACE)
+            self.context.depth_func = "<="
+            self.sky_array.render(moderngl.TRIANGLES, vertices=3)
+            self.context.depth_func = "<"
+        return framebuffer, outputs
+
+    def reduced_views(
+        self,
+        views: Sequence[tuple[Sequence[float], Sequence[float], int, int]],
+        far_m: float,
+        size: tuple[int, int],
+        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
+        meter_step: int = 1,
+    ) -> list[NDArray[np.uint8]]:
+        """Each of `views` (pybullet's `view` and `projection` matrices, width, height: as
+        `queue`'s) drawn with the clip's look, exposed and area-resized to `size` (width,
+        height): RGB `(H, W, 3)` each, a view of its BGRA read (`queue`'s colour). With
+        `gain_of`, each drawn pixel's levels are multiplied by the gain it returns for the
+        view's pixels at every `meter_step`-th row and column (`rgb[s // 2 :: s, s // 2 ::
+        s]`), rounded and saturated (`conditions.expose`), before the reduction (OpenCV's
+        INTER_AREA; halves rounded up). On a GPU by shaders (`shaders/sample.frag`,
+        `reduce.frag`), only the meter's and `size`'s pixels read back, with two waits for the
+        GPU in all: every view is drawn and sampled before any sample is taken, and every one
+        reduced before any is taken. Where GL draws on the CPU, or a view is smaller than
+        `size` (OpenCV's INTER_AREA then enlarges it bilinearly), each view is read whole and
+        resized by OpenCV, as the shaders do it (`_reduced_on_cpu`)."""
+        colour = (Read(0, 4, "f1"),)
+        # a view smaller than `size` is enlarged, by OpenCV (the shader only averages)
+        enlarged = any(size[0] > width or size[1] > height for _, _, width, height in views)
+        with current(self.context):
+            if not self.reduces or enlarged:
+                reduced = []
+                for view, projection, width, height in views:
+                    framebuffer, _ = self._draw(view, projection, width, height, False, far_m)
+                    bgra = self.readback.read(framebuffer, colour, width, height, queued=False)
+                    reduced.append(_reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step))
+                return [bgra[..., 2::-1] for bgra in reduced]
+            drawn, samples = [], []
+            for slot, (view, projection, width, height) in enumerate(views):
+                framebuffer, _ = self._draw(view, projection, width, height, False, far_m,
+                                            sampled=True, slot=slot)  # fmt: skip
+                drawn.append((framebuffer, (width, height)))
+                if gain_of is not None:
+                    samples.append(self._samples(framebuffer, (width, height), meter_step))
+            gains = [float(gain_of(taken.result()[0][..., 2::-1])) for taken in samples]
+            gains = gains or [1.0] * len(views)
+            pending = [
+                self.readback.read(self._reduce(framebuffer, drawn_size, size, gain), colour, *size)
+                for (framebuffer, drawn_size), gain in zip(drawn, gains, strict=True)
+            ]
+            return [taken.result()[0][..., 2::-1] for taken in pending]
+
+    def _samples(self, framebuffer, drawn: tuple[int, int], step: int) -> PendingPixels:
+        """The colour of `framebuffer` (drawn at `drawn`, its colour a texture) at every
+        `step`-th row and column from `step // 2`, on its way back (BGRA `(h, w, 4)`)."""
         import moderngl
 
         size = (len(range(step // 2, drawn[0], step)), len(range(step // 2, drawn[1], step)))
@@ -1007,8 +1039,7 @@ class GLRenderer:
         _set(self.sample_program, "source", REDUCE_TEXTURE_UNIT)
         _set(self.sample_program, "step", step)
         self.sample_array.render(moderngl.TRIANGLES, vertices=3)
-        pixels = self.readback.read(samples, (Read(0, 4, "f1"),), *size, queued=False)
-        return pixels.result()[0][..., 2::-1]
+        return self.readback.read(samples, (Read(0, 4, "f1"),), *size)
 
     def _reduce(
         self, framebuffer, drawn: tuple[int, int], size: tuple[int, int], gain: float = 1.0
@@ -1072,7 +1103,7 @@ def _reduced_on_cpu(
     gain_of: Callable[[NDArray[np.uint8]], float] | None,
     meter_step: int,
 ) -> NDArray[np.uint8]:
-    """`queue`'s `reduce_to` on the CPU: a whole BGRA view `(H, W, 4)` exposed by the gain
+    """`GLRenderer.reduced_views` on the CPU: a whole BGRA view `(H, W, 4)` exposed by the gain
     `gain_of` gives for its pixels at every `meter_step`-th row and column (as RGB) and
     area-resized to `size` (width, height), as `shaders/sample.frag` and `reduce.frag` do it."""
     import cv2

@@ -17,7 +17,7 @@ import logging
 import os
 import pkgutil
 import sys
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -438,9 +438,6 @@ class World:
         casters_drawn: bool = False,
         queued: bool = True,
         depth_at: NDArray[np.int32] | None = None,
-        reduce_to: tuple[int, int] | None = None,
-        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
-        meter_step: int = 1,
     ) -> Callable[[], Image]:
         """The image drawn, returned by the function this returns: with the GL renderer on a
         GPU and `queued`, its pixels come back through pixel buffers while the caller draws its
@@ -457,12 +454,7 @@ class World:
         renderer's): the ego hidden from its cameras but placed with its pose (`place_ego`) is
         drawn too, where it stands: the top view of the cameras' state. `depth_at` `(N, 2)`
         (column, row of the image as drawn): the pixels whose depth the caller needs; the GL
-        renderer on a GPU reads the depth there alone (`Image.depth_samples`). `reduce_to`
-        (width, height; the GL renderer's): the colour alone, area-resized to that size on the
-        GPU, exposed first by the gain `gain_of` gives for the view's pixels at every
-        `meter_step`-th row and column (`GLRenderer.queue`)."""
-        if reduce_to is not None and self.gl is None:
-            raise ValueError("a view reduced on the GPU (reduce_to) needs the GL renderer")
+        renderer on a GPU reads the depth there alone (`Image.depth_samples`)."""
         if not self.can_render:
             raise DriveE2EError(
                 "this World's EGL renderer was superseded: another World (or pybullet EGL client) "
@@ -486,8 +478,7 @@ class World:
         drawn_width, drawn_height = self.drawn_size(width, height)
         if self.gl is not None:
             pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
-                                     far_m, look, casters_drawn, queued, depth_at,
-                                     reduce_to, gain_of, meter_step)  # fmt: skip
+                                     far_m, look, casters_drawn, queued, depth_at)  # fmt: skip
             if pending.gathered is None:
                 return lambda: Image(*pending.result())
 
@@ -501,6 +492,36 @@ class World:
         if not native and (drawn_width, drawn_height) != (width, height):
             image = image.resized(width, height)
         return lambda: image
+
+    def render_reduced(
+        self,
+        views: Sequence[tuple[NDArray[np.float64], NDArray[np.float64], int, int, float]],
+        size: tuple[int, int],
+        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
+        meter_step: int = 1,
+        near_m: float = 0.1,
+        far_m: float = 200.0,
+    ) -> list[NDArray[np.uint8]]:
+        """RGB `(H, W, 3)` at `size` (width, height) of each of `views` (eye, target, width,
+        height, vertical field of view: `render`'s, z up), drawn by the GL renderer with the
+        clip's weather and light, each exposed by the gain `gain_of` returns for its pixels at
+        every `meter_step`-th row and column and area-resized to `size`, all the views drawn
+        before any is read (`GLRenderer.reduced_views`): the closed-loop observer's cameras."""
+        if self.gl is None:
+            raise ValueError("views reduced by the renderer (render_reduced) need the GL renderer")
+        if not self.can_render:
+            raise DriveE2EError("this World's renderer was superseded by a newer World's")
+        matrices = []
+        for eye_m, target_m, width, height, vertical_fov_deg in views:
+            view = self.p.computeViewMatrix([float(v) for v in eye_m],
+                                            [float(v) for v in target_m], [0.0, 0.0, 1.0],
+                                            physicsClientId=self.client)  # fmt: skip
+            projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height,
+                                                           near_m, far_m,
+                                                           physicsClientId=self.client)  # fmt: skip
+            matrices.append((view, projection, width, height))
+        self.gl.sync(self.state, self.animations, self.scene_lights)
+        return self.gl.reduced_views(matrices, far_m, size, gain_of, meter_step)
 
     @property
     def look_version(self) -> int:
