@@ -203,6 +203,34 @@ def test_walls_and_windows_facing_away_from_the_sun_are_drawn_without_the_shadow
     assert averted_facades not in unsorted.group and averted_windows not in unsorted.group
 
 
+def test_a_kept_group_order_gives_what_sorting_afresh_gives_frame_after_frame():
+    """A GPU's moving bodies are grouped by material without cells (`GroupOrder`): the order is
+    kept while the triangles' materials are the same, recomputed when they change, and every
+    frame's vertices and batches are those of `in_draw_order` sorting them afresh."""
+    rng = np.random.default_rng(5)
+    order = gl_batches.GroupOrder()
+    materials = [Material.PAINT, Material.GLASS, Material.MATTE, Material.TYRE, Material.LAMP]
+    codes = rng.choice(materials, size=300)
+    frames = []
+    for frame in range(4):
+        if frame == 2:  # a body appears: other materials in other places
+            codes = np.concatenate([codes, rng.choice(materials, size=40)])
+        centres = rng.uniform(-50.0, 50.0, size=(len(codes), 2))  # everything moved
+        frames.append(np.concatenate([_triangle_rows(centres[k : k + 1], code)
+                                      for k, code in enumerate(codes)]))  # fmt: skip
+    kept = []
+    for rows in frames:
+        ordered, batches = order(rows)
+        expected, expected_batches = in_draw_order(rows, cells=False)
+        np.testing.assert_array_equal(ordered, expected)
+        for field in ("group", "first", "count", "low_m", "high_m"):
+            np.testing.assert_array_equal(getattr(batches, field),
+                                          getattr(expected_batches, field))  # fmt: skip
+        kept.append(order.order)
+    assert kept[1] is kept[0] and kept[2] is not kept[1] and kept[3] is kept[2]
+    assert len(batches.group) == 2  # paint, glass and tyre; matte and lamps: two groups
+
+
 @pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 def test_walls_drawn_without_the_shadow_lookup_where_the_sun_is_behind_them_look_the_same(
     site, monkeypatch

@@ -239,6 +239,43 @@ def in_draw_order(
     (NaN rows: their centroid's)."""
     if not len(vertices):
         return vertices, DrawBatches.empty()
+    order, batches = draw_order(vertices, cells, light_direction, anchors_xy)
+    ordered = np.take(vertices.reshape(-1, 3, FLOATS_PER_VERTEX), order, axis=0)
+    return ordered.reshape(-1, FLOATS_PER_VERTEX), batches
+
+
+class GroupOrder:
+    """`in_draw_order` without cells (a GPU's moving bodies, drawn whole), remembered: there the
+    order and the batches depend on nothing but each triangle's material, so while a frame's
+    triangles carry the same materials in the same places as the last frame's (the same bodies
+    with the same models), the last order is taken again and only the triangles are moved: the
+    same vertices and batches, without sorting them again."""
+
+    def __init__(self) -> None:
+        self.materials: NDArray[np.float32] | None = None
+        self.order = np.zeros(0, np.int64)
+        self.batches = DrawBatches.empty()
+
+    def __call__(self, vertices: NDArray[np.float32]) -> tuple[NDArray[np.float32], DrawBatches]:
+        if not len(vertices):
+            return vertices, DrawBatches.empty()
+        triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
+        materials = triangles[:, 0, FLOATS_PER_VERTEX - 1]
+        if self.materials is None or not np.array_equal(materials, self.materials):
+            self.order, self.batches = draw_order(vertices, cells=False)
+            self.materials = materials.copy()
+        ordered = np.take(triangles, self.order, axis=0)
+        return ordered.reshape(-1, FLOATS_PER_VERTEX), self.batches
+
+
+def draw_order(
+    vertices: NDArray[np.float32],
+    cells: bool = True,
+    light_direction: tuple[float, float, float] | None = None,
+    anchors_xy: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.int64], DrawBatches]:
+    """`in_draw_order`'s order of the triangles of `vertices` (not empty), `(T,)` indices, and
+    its batches."""
     triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
     codes = np.clip(np.rint(triangles[:, 0, FLOATS_PER_VERTEX - 1]), 0, 255).astype(np.int64)
     groups = _GROUP_OF[codes]
@@ -277,7 +314,6 @@ def in_draw_order(
     else:  # no boxes: every batch may show anywhere (and every crown is near: detailed)
         low = np.full((len(starts), 3), -np.inf)
         high = np.full((len(starts), 3), np.inf)
-    ordered = triangles[order]
     counts = np.diff(np.append(starts, len(order)))
     batches = DrawBatches(
         group=groups[order][starts],
@@ -286,4 +322,4 @@ def in_draw_order(
         low_m=low,
         high_m=high,
     )
-    return np.ascontiguousarray(ordered.reshape(-1, FLOATS_PER_VERTEX)), batches
+    return order, batches

@@ -38,6 +38,7 @@ from drivee2e_data.sim.gl_batches import (
     NOT_CASTING,
     SHADOW_ONLY,
     DrawBatches,
+    GroupOrder,
     group_defines,
     in_draw_order,
     level_of_detail,
@@ -470,6 +471,7 @@ class GLRenderer:
         self.lit: object = None  # the state whose headlights the light texture holds
         self.wear = wear
         self.dynamic_batches = DrawBatches.empty()
+        self.dynamic_order = GroupOrder()  # the moving bodies' order, kept while it holds
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
         self.placers: dict[int, PlacedModel] = {}  # each model body's posing, made once
@@ -680,7 +682,10 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
+        if self.cull:
+            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts))
+        else:
+            vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
         lights = lights or SceneLights()
         casters = [self._placed(body, position, orientation, animation)
                    for body, position, orientation, animation in lights.casters
@@ -698,7 +703,7 @@ class GLRenderer:
                 self.dynamic_buffer.release()
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
             if vertices.nbytes:
-                self.dynamic_buffer.write(vertices.tobytes())
+                self.dynamic_buffer.write(vertices)  # its bytes as they lie: no copy
         self.lights = lights
         self.synced = state
 

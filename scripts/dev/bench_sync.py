@@ -1,0 +1,46 @@
+"""What posing, ordering and uploading a frame's moving bodies costs (`GLRenderer.sync`), as a
+GPU host's renderer does it (the scene drawn whole: no cells, `cull` off), measured on any host:
+the CPU's share of a closed-loop or collection step that no GPU takes over.
+
+    python scripts/dev/bench_sync.py DATA CLIP [--frames 60]
+
+DATA holds scenario bundles (`drivee2e synth`). Prints the mean and median ms a frame over the
+clip's first frames (the first five, which make the models' posers, left out). Run two versions
+alternately to compare them (docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivee2e_data import store
+from drivee2e_data.sim.world import World
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("data", type=Path)
+    parser.add_argument("clip")
+    parser.add_argument("--frames", type=int, default=60)
+    args = parser.parse_args()
+    scenario = store.read_scenario(args.data, args.clip)
+    with World(store.read_map(args.data, scenario.map_id), scenario, "gl") as world:
+        world.gl.cull = False  # as on a GPU
+        world.gl.forget_bodies()
+        seconds = []
+        for frame in range(1, min(args.frames, scenario.ego.x_m.shape[0])):
+            world.set_time(frame)
+            start = time.perf_counter()
+            world.gl.sync(world.state, world.animations, world.scene_lights)
+            seconds.append(time.perf_counter() - start)
+    kept = np.asarray(seconds[5:]) * 1000
+    print(f"{args.clip}: sync {kept.mean():.2f} ms a frame (median {np.median(kept):.2f}) "
+          f"over {len(kept)} frames")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
