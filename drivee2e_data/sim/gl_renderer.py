@@ -44,6 +44,7 @@ from drivee2e_data.sim.gl_batches import (
     level_of_detail,
 )
 from drivee2e_data.sim.gl_readback import PendingPixels, PixelReads, Read
+from drivee2e_data.sim.gl_reduce import ViewReduction, reduced_on_cpu, samples_size
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -71,8 +72,6 @@ FRAMEBUFFER_OUTPUTS = {
     "plain": ("bgra", "depth", "body"),
     "labels": ("depth", "body"),
 }
-# the area reduction's source (`GLRenderer.reduced_views`): after the scene's three and the gather's
-REDUCE_TEXTURE_UNIT = 4
 # The sun's shadow map: 2048 texels over 150 m is 7 cm a texel, sharp enough for a pedestrian's
 # shadow; beyond 75 m from the ego the shadows fade out (`scene.frag`'s `sunlit`)
 SHADOW_MAP_PX = 2048
@@ -444,14 +443,9 @@ class GLRenderer:
             self.sky_array = context.vertex_array(
                 self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
             )
-            self.reduce_program = _program("reduce.vert", "reduce.frag")
-            self.reduce_array = context.vertex_array(
-                self.reduce_program, [(self.sky_buffer, "2f", "in_corner")]
-            )
-            self.sample_program = _program("reduce.vert", "sample.frag")
-            self.sample_array = context.vertex_array(
-                self.sample_program, [(self.sky_buffer, "2f", "in_corner")]
-            )
+            self.reduction = ViewReduction(context, _program("reduce.vert", "sample.frag"),
+                                           _program("reduce.vert", "reduce.frag"),
+                                           self.sky_buffer)  # fmt: skip
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
             self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
@@ -1003,7 +997,7 @@ class GLRenderer:
         GPU in all: every view is drawn and sampled before any sample is taken, and every one
         reduced before any is taken. Where GL draws on the CPU, or a view is smaller than
         `size` (OpenCV's INTER_AREA then enlarges it bilinearly), each view is read whole and
-        resized by OpenCV, as the shaders do it (`_reduced_on_cpu`)."""
+        resized by OpenCV, as the shaders do it (`gl_reduce.reduced_on_cpu`)."""
         colour = (Read(0, 4, "f1"),)
         # a view smaller than `size` is enlarged, by OpenCV (the shader only averages)
         enlarged = any(size[0] > width or size[1] > height for _, _, width, height in views)
@@ -1013,7 +1007,7 @@ class GLRenderer:
                 for view, projection, width, height in views:
                     framebuffer, _ = self._draw(view, projection, width, height, False, far_m)
                     bgra = self.readback.read(framebuffer, colour, width, height, queued=False)
-                    reduced.append(_reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step))
+                    reduced.append(reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step))
                 return [bgra[..., 2::-1] for bgra in reduced]
             drawn, samples = [], []
             for slot, (view, projection, width, height) in enumerate(views):
@@ -1021,49 +1015,19 @@ class GLRenderer:
                                             sampled=True, slot=slot)  # fmt: skip
                 drawn.append((framebuffer, (width, height)))
                 if gain_of is not None:
-                    samples.append(self._samples(framebuffer, (width, height), meter_step))
+                    sampled = self._framebuffer(*samples_size((width, height), meter_step),
+                                                ("bgra",))  # fmt: skip
+                    self.reduction.sample(framebuffer.color_attachments[0], sampled, meter_step)
+                    samples.append(self.readback.read(sampled, colour, *sampled.size))
             gains = [float(gain_of(taken.result()[0][..., 2::-1])) for taken in samples]
             gains = gains or [1.0] * len(views)
-            pending = [
-                self.readback.read(self._reduce(framebuffer, drawn_size, size, gain), colour, *size)
-                for (framebuffer, drawn_size), gain in zip(drawn, gains, strict=True)
-            ]
+            target = self._framebuffer(*size, ("bgra",))
+            pending = []
+            for (framebuffer, drawn_size), gain in zip(drawn, gains, strict=True):
+                self.reduction.reduce(framebuffer.color_attachments[0], drawn_size, target, size,
+                                      gain)  # fmt: skip
+                pending.append(self.readback.read(target, colour, *size))
             return [taken.result()[0][..., 2::-1] for taken in pending]
-
-    def _samples(self, framebuffer, drawn: tuple[int, int], step: int) -> PendingPixels:
-        """The colour of `framebuffer` (drawn at `drawn`, its colour a texture) at every
-        `step`-th row and column from `step // 2`, on its way back (BGRA `(h, w, 4)`)."""
-        import moderngl
-
-        size = (len(range(step // 2, drawn[0], step)), len(range(step // 2, drawn[1], step)))
-        samples = self._framebuffer(*size, ("bgra",))
-        samples.use()
-        self.context.disable(moderngl.DEPTH_TEST)
-        self.context.disable(moderngl.CULL_FACE)
-        framebuffer.color_attachments[0].use(location=REDUCE_TEXTURE_UNIT)
-        _set(self.sample_program, "source", REDUCE_TEXTURE_UNIT)
-        _set(self.sample_program, "step", step)
-        self.sample_array.render(moderngl.TRIANGLES, vertices=3)
-        return self.readback.read(samples, (Read(0, 4, "f1"),), *size)
-
-    def _reduce(
-        self, framebuffer, drawn: tuple[int, int], size: tuple[int, int], gain: float = 1.0
-    ):
-        """A framebuffer of `size` (width, height) holding the colour of `framebuffer` (drawn
-        at `drawn`, its colour a texture) exposed by `gain` and area-resized: each pixel the
-        mean of the drawn pixels under it (`shaders/reduce.frag`)."""
-        import moderngl
-
-        reduced = self._framebuffer(size[0], size[1], ("bgra",))
-        reduced.use()
-        self.context.disable(moderngl.DEPTH_TEST)
-        self.context.disable(moderngl.CULL_FACE)
-        framebuffer.color_attachments[0].use(location=REDUCE_TEXTURE_UNIT)
-        _set(self.reduce_program, "source", REDUCE_TEXTURE_UNIT)
-        _set(self.reduce_program, "scale", (drawn[0] / size[0], drawn[1] / size[1]))
-        _set(self.reduce_program, "gain", gain)
-        self.reduce_array.render(moderngl.TRIANGLES, vertices=3)
-        return reduced
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the
@@ -1079,8 +1043,9 @@ class GLRenderer:
                 framebuffer.release()
             for array in self.arrays.values():
                 array.release()
+            self.reduction.release()
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
-                             self.reduce_array, self.sample_array, self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
+                             self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
                              self.static_shadow_framebuffer, self.static_shadow_texture,
                              self.wear_texture, self.lamp_texture):  # fmt: skip
                 resource.release()
@@ -1100,25 +1065,6 @@ def _program(vertex: str, fragment: str, defines: tuple[str, ...] = ()):
     draws with up to sixteen variants, and llvmpipe takes tens of milliseconds to compile one."""
     return _context().program(vertex_shader=shader_source(vertex),
                               fragment_shader=shader_source(fragment, defines))  # fmt: skip
-
-
-def _reduced_on_cpu(
-    bgra: NDArray[np.uint8],
-    size: tuple[int, int],
-    gain_of: Callable[[NDArray[np.uint8]], float] | None,
-    meter_step: int,
-) -> NDArray[np.uint8]:
-    """`GLRenderer.reduced_views` on the CPU: a whole BGRA view `(H, W, 4)` exposed by the gain
-    `gain_of` gives for its pixels at every `meter_step`-th row and column (as RGB) and
-    area-resized to `size` (width, height), as `shaders/sample.frag` and `reduce.frag` do it."""
-    import cv2
-
-    if gain_of is not None:
-        start = meter_step // 2
-        gain = float(gain_of(bgra[start::meter_step, start::meter_step, 2::-1]))
-        if gain != 1.0:
-            bgra = cv2.convertScaleAbs(bgra, alpha=gain)
-    return cv2.resize(bgra, tuple(size), interpolation=cv2.INTER_AREA)
 
 
 def _wear_texture(context, wear: WearRaster | None):
