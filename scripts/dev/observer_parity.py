@@ -6,6 +6,7 @@ PSNR against the logged JPEG decoded to the agent's input size), and the time of
 size side by side, frame by frame (2 is the observer's default).
 
     python scripts/dev/observer_parity.py DATA --input 128x72 [--supersample 1 2] [--only CLIP ...]
+        [--reduce-on auto|gpu|cpu]
 
 Prints one line per clip (weather, time of day, equal JPEGs, PSNR min and median, ms a step of
 three front cameras each way) and the spread over all clips; docs/closedloop.md quotes it.
@@ -89,13 +90,32 @@ def clip_parity(
     return result
 
 
+def reduce_on(gpu: bool) -> None:
+    """Every GL renderer made from here on reduces its views by its shader passes (`gpu`) or by
+    OpenCV (`GLRenderer.reduces`), whatever draws."""
+    from drivee2e_data.sim import gl_renderer
+
+    made = gl_renderer.GLRenderer.__init__
+
+    def init(self, *args, **kwargs) -> None:  # type: ignore[no-untyped-def]
+        made(self, *args, **kwargs)
+        self.reduces = gpu
+
+    gl_renderer.GLRenderer.__init__ = init  # type: ignore[method-assign]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path)
     parser.add_argument("--input", default="128x72", help="the agent's input size, WxH")
     parser.add_argument("--supersample", type=int, nargs="+", default=[SUPERSAMPLE])
     parser.add_argument("--only", nargs="+", default=None)
+    parser.add_argument("--reduce-on", choices=["auto", "gpu", "cpu"], default="auto",
+                        help="where the cheap path's exposure and resize run: the host's choice, "
+                        "the renderer's shader passes (forced on llvmpipe too) or OpenCV")  # fmt: skip
     args = parser.parse_args()
+    if args.reduce_on != "auto":
+        reduce_on(args.reduce_on == "gpu")
     input_size = tuple(int(v) for v in args.input.split("x"))
     supersamples = tuple(args.supersample)
     clips = args.only or sorted(p.stem for p in (args.data / "logs").glob("*.mcap"))
