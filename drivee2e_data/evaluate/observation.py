@@ -56,7 +56,7 @@ class SensorObserver:
     """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
     agent whose training images were collected at `image_size` (width, height; None for
     1600x900); with `input_size`, drawn small (at least `supersample` times `input_size`),
-    area-resized to it on the GPU and served as the decoded pixels at that size
+    exposed and area-resized to it by the renderer and served as the decoded pixels at that size
     (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
 
     def __init__(

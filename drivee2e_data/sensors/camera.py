@@ -186,9 +186,9 @@ def render_reduced(
         views.append((pose[:3, 3], pose[:3, 3] + 10.0 * pose[:3, 2], camera.width, camera.height,
                       camera.vertical_fov_deg))  # fmt: skip
     widths = {camera.width for camera in cameras}
-    step = meter_step(widths.pop()) if len(widths) == 1 else 1
-    if widths:
-        raise ValueError("the cameras of one reduced draw share one size")
+    if len(widths) > 1:
+        raise ValueError(f"the cameras drawn reduced together share one width, not {widths}")
+    step = meter_step(widths.pop()) if widths else 1
     reduced = world.render_reduced(views, size, lambda samples: exposure(samples, lighting).gain,
                                    step, NEAR_M, FAR_M)  # fmt: skip
     images = {}

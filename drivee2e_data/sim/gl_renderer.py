@@ -715,7 +715,12 @@ class GLRenderer:
         return vertices
 
     def _framebuffer(
-        self, width: int, height: int, outputs: tuple[str, ...], sampled: bool = False, slot=0
+        self,
+        width: int,
+        height: int,
+        outputs: tuple[str, ...],
+        sampled: bool = False,
+        slot: int = 0,
     ):
         """A framebuffer of `width` x `height` with one colour attachment per name in `outputs`
         (`FRAMEBUFFER_OUTPUTS`, in the order of the shaders' output locations) and a depth
