@@ -6,7 +6,7 @@ PSNR against the logged JPEG decoded to the agent's input size), and the time of
 size side by side, frame by frame (2 is the observer's default).
 
     python scripts/dev/observer_parity.py DATA --input 128x72 [--supersample 1 2] [--only CLIP ...]
-        [--reduce-on auto|gpu|cpu]
+        [--reduce-on auto|gpu|cpu] [--sheet PNG]
 
 Prints one line per clip (weather, time of day, equal JPEGs, PSNR min and median, ms a step of
 three front cameras each way) and the spread over all clips; docs/closedloop.md quotes it.
@@ -83,6 +83,17 @@ def clip_parity(
                 reference = decode_cpu(logged, full, input_size)
                 for k in supersamples:
                     result["cheap", k].append(psnr(pixels[k][camera], reference))
+            if logged_frame == log.sensor_frames[len(log.sensor_frames) // 2]:
+                # the middle frame's three cameras, logged above, the cheap path below
+                logged_row = [
+                    decode_cpu(CompressedImage.FromString(raw[topics.image_topic(c)]).data, full,
+                               input_size)
+                    for c in FRONT
+                ]  # fmt: skip
+                result["sheet"] = np.concatenate([
+                    np.concatenate([np.moveaxis(image, 0, -1) for image in row], axis=1)
+                    for row in (logged_row, [pixels[supersamples[0]][c] for c in FRONT])
+                ])  # fmt: skip
     result["conditions"] = (
         scenario.conditions.weather.value,
         scenario.conditions.time_of_day.value,
@@ -113,6 +124,9 @@ def main() -> None:
     parser.add_argument("--reduce-on", choices=["auto", "gpu", "cpu"], default="auto",
                         help="where the cheap path's exposure and resize run: the host's choice, "
                         "the renderer's shader passes (forced on llvmpipe too) or OpenCV")  # fmt: skip
+    parser.add_argument("--sheet", type=Path, default=None,
+                        help="a PNG of each clip's middle frame: its three front cameras as "
+                        "logged (decoded to the input size), and below them the cheap path's")  # fmt: skip
     args = parser.parse_args()
     if args.reduce_on != "auto":
         reduce_on(args.reduce_on == "gpu")
@@ -120,11 +134,13 @@ def main() -> None:
     supersamples = tuple(args.supersample)
     clips = args.only or sorted(p.stem for p in (args.data / "logs").glob("*.mcap"))
     exact: list[float] = []
+    sheets = []
     cheap: dict[int, list[float]] = {k: [] for k in supersamples}
     seconds: dict[int, list[float]] = {k: [] for k in supersamples}
     for clip in clips:
         r = clip_parity(args.data, clip, input_size, supersamples)  # type: ignore[arg-type]
         exact += r["exact"]
+        sheets.append(r["sheet"])
         paths = []
         for k in supersamples:
             cheap[k] += r["cheap", k]
@@ -136,6 +152,13 @@ def main() -> None:
               f"{1000 * np.median(r['exact_s']):.0f} ms a step; cheap path " + "; ".join(paths),
               flush=True)  # fmt: skip
     print(f"all {len(exact)} images: JPEG path PSNR min {min(exact):.1f} dB")
+    if args.sheet is not None:
+        import cv2
+
+        cv2.imwrite(
+            str(args.sheet), np.concatenate(sheets)[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9]
+        )
+        print(f"wrote {args.sheet}")
     reference = supersamples[0]
     for k in supersamples:
         ratio = np.median(seconds[k]) / np.median(seconds[reference])
