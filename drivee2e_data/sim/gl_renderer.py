@@ -288,6 +288,16 @@ def shadow_matrix(light_direction: Sequence[float], centre_xy: Sequence[float]) 
     return projection @ view
 
 
+@functools.lru_cache(maxsize=64)
+def _sun_matrix(light_direction: tuple[float, ...], centre_xy: tuple[float, ...]) -> NDArray:
+    """`shadow_matrix`, read-only and kept: every view of a state, and every state while the
+    focus stays on its grid square, has the same (0.08 ms a call on 2 cores, 13 views a frame
+    in collection)."""
+    matrix = shadow_matrix(light_direction, centre_xy)
+    matrix.setflags(write=False)
+    return matrix
+
+
 @dataclass(frozen=True)
 class SceneLights:
     """What the scene's light follows at one state besides the look: the focus the sun's shadow
@@ -926,7 +936,9 @@ class GLRenderer:
         shader_look = self.look if look == "camera" else self.look.plain()
         shadows = look != "labels" and shader_look.shadows
         focus = np.round(np.asarray(self.lights.focus_xy_m) / SHADOW_FOCUS_STEP_M)
-        sun_matrix = shadow_matrix(shader_look.light_direction, focus * SHADOW_FOCUS_STEP_M)
+        # (+ 0.0: a focus of -0.0 keys the same matrix as 0.0 and gets its bytes)
+        sun_matrix = _sun_matrix(tuple(shader_look.light_direction),
+                                 tuple((focus * SHADOW_FOCUS_STEP_M + 0.0).tolist()))  # fmt: skip
         key = self.synced if self.lights.shadow_key is None else self.lights.shadow_key
         if shadows and self.shadowed != key:
             self._shadow_pass(sun_matrix)
