@@ -97,9 +97,7 @@ def render(
     """The camera's view at the world's current frame (the rig's cameras are level).
     `depth_at` `(N, 2)` (column, row as drawn): the pixels whose depth is needed, read alone
     where the renderer can (`CameraFrame.depth_samples`)."""
-    pose = camera_to_world(camera, ego_to_world)
-    eye = pose[:3, 3]
-    target = eye + 10.0 * pose[:3, 2]
+    eye, target = _eye_and_target(camera, ego_to_world)
     image = world.render(
         eye, target, camera.width, camera.height, camera.vertical_fov_deg, segmentation=mask,
         near_m=NEAR_M, far_m=FAR_M, native=True, depth_at=depth_at,
@@ -107,6 +105,14 @@ def render(
     # without ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX the mask holds body ids, -1 for none
     return CameraFrame(camera, image.rgb, image.depth_m, image.segmentation,
                        world.renderer == "gl", image.depth_samples)  # fmt: skip
+
+
+def _eye_and_target(
+    camera: Camera, ego_to_world: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The camera's position in the world and a point 10 m along its optical axis."""
+    pose = camera_to_world(camera, ego_to_world)
+    return pose[:3, 3], pose[:3, 3] + 10.0 * pose[:3, 2]
 
 
 def noise_seed(scenario_id: str, frame: int, camera: Camera) -> int:
@@ -180,11 +186,8 @@ def render_reduced(
     if world.renderer != "gl":
         raise ValueError("a reduced view needs the GL renderer (it draws the weather itself)")
     lighting, scenario = world.lighting, world.scenario
-    views = []
-    for camera in cameras:
-        pose = camera_to_world(camera, ego_to_world)
-        views.append((pose[:3, 3], pose[:3, 3] + 10.0 * pose[:3, 2], camera.width, camera.height,
-                      camera.vertical_fov_deg))  # fmt: skip
+    views = [(*_eye_and_target(camera, ego_to_world), camera.width, camera.height,
+              camera.vertical_fov_deg) for camera in cameras]  # fmt: skip
     widths = {camera.width for camera in cameras}
     if len(widths) > 1:
         raise ValueError(f"the cameras drawn reduced together share one width, not {widths}")

@@ -27,7 +27,6 @@ class ViewReduction:
 
     def __init__(self, context, sample_program, reduce_program, corners) -> None:
         self.context = context
-        self.sample_program, self.reduce_program = sample_program, reduce_program
         self.sample_array = context.vertex_array(sample_program, [(corners, "2f", "in_corner")])
         self.reduce_array = context.vertex_array(reduce_program, [(corners, "2f", "in_corner")])
 

@@ -461,20 +461,8 @@ class World:
                 "was made in this process after it, and pybullet's EGL plugin draws only in the "
                 "newest one's context; close this World and make a new one"
             )
-        view = self.p.computeViewMatrix(
-            [float(v) for v in eye_m],
-            [float(v) for v in target_m],
-            [float(v) for v in up],
-            physicsClientId=self.client,
-        )
-        if frustum is None:
-            projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height, near_m,
-                                                           far_m, physicsClientId=self.client)  # fmt: skip
-        else:
-            left, right, bottom, top = (near_m * float(t) for t in frustum)
-            projection = self.p.computeProjectionMatrix(
-                left, right, bottom, top, near_m, far_m, physicsClientId=self.client
-            )
+        view, projection = self._matrices(eye_m, target_m, width / height, vertical_fov_deg,
+                                          near_m, far_m, up, frustum)  # fmt: skip
         drawn_width, drawn_height = self.drawn_size(width, height)
         if self.gl is not None:
             pending = self._gl_queue(view, projection, drawn_width, drawn_height, segmentation,
@@ -509,19 +497,42 @@ class World:
         before any is read (`GLRenderer.reduced_views`): the closed-loop observer's cameras."""
         if self.gl is None:
             raise ValueError("views reduced by the renderer (render_reduced) need the GL renderer")
-        if not self.can_render:
-            raise DriveE2EError("this World's renderer was superseded by a newer World's")
-        matrices = []
-        for eye_m, target_m, width, height, vertical_fov_deg in views:
-            view = self.p.computeViewMatrix([float(v) for v in eye_m],
-                                            [float(v) for v in target_m], [0.0, 0.0, 1.0],
-                                            physicsClientId=self.client)  # fmt: skip
-            projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, width / height,
-                                                           near_m, far_m,
-                                                           physicsClientId=self.client)  # fmt: skip
-            matrices.append((view, projection, width, height))
+        matrices = [
+            (*self._matrices(eye_m, target_m, width / height, vertical_fov_deg, near_m, far_m),
+             width, height)
+            for eye_m, target_m, width, height, vertical_fov_deg in views
+        ]  # fmt: skip
         self.gl.sync(self.state, self.animations, self.scene_lights)
         return self.gl.reduced_views(matrices, far_m, size, gain_of, meter_step)
+
+    def _matrices(
+        self,
+        eye_m: NDArray[np.float64],
+        target_m: NDArray[np.float64],
+        aspect: float,
+        vertical_fov_deg: float,
+        near_m: float,
+        far_m: float,
+        up: NDArray[np.float64] | tuple[float, float, float] = (0.0, 0.0, 1.0),
+        frustum: tuple[float, float, float, float] | None = None,
+    ) -> tuple[list[float], list[float]]:
+        """pybullet's view and projection matrices (column-major) of a pinhole camera at `eye_m`
+        looking at `target_m` (`render_later`'s arguments; `aspect`: width over height)."""
+        view = self.p.computeViewMatrix(
+            [float(v) for v in eye_m],
+            [float(v) for v in target_m],
+            [float(v) for v in up],
+            physicsClientId=self.client,
+        )
+        if frustum is None:
+            projection = self.p.computeProjectionMatrixFOV(vertical_fov_deg, aspect, near_m, far_m,
+                                                           physicsClientId=self.client)  # fmt: skip
+        else:
+            left, right, bottom, top = (near_m * float(t) for t in frustum)
+            projection = self.p.computeProjectionMatrix(
+                left, right, bottom, top, near_m, far_m, physicsClientId=self.client
+            )
+        return view, projection
 
     @property
     def look_version(self) -> int:
