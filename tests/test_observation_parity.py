@@ -18,13 +18,15 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 
 from drivee2e_data import store
 from drivee2e_data.cli import main
-from drivee2e_data.evaluate.observation import PARITY_PSNR_DB, SensorObserver, planar
-from drivee2e_data.evaluate.traffic import Traffic
+from drivee2e_data.evaluate.observation import (
+    PARITY_PSNR_DB,
+    LoggedDrive,
+    SensorObserver,
+    planar,
+)
 from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
-from drivee2e_data.sensors.ego_state import ego_motion
-from drivee2e_data.sim.vehicle import VehicleState
 from drivee2e_data.sim.world import World
 from tests.conftest import copy_clips
 
@@ -52,8 +54,7 @@ def weathered_root(synthetic_root: Path, tmp_path_factory: pytest.TempPathFactor
 @pytest.mark.parametrize("clip", ["synth_s0_c0006", "synth_s0_c0011"])
 def test_the_observer_sees_the_logged_frames(weathered_root: Path, clip: str) -> None:
     scenario = store.read_scenario(weathered_root, clip)
-    motion, traffic = ego_motion(scenario), Traffic(scenario)
-    ego = scenario.ego
+    drive = LoggedDrive(scenario)
     intersection_map = store.read_map(weathered_root, scenario.map_id)
     with (
         World(intersection_map, scenario, "auto") as world,
@@ -66,20 +67,9 @@ def test_the_observer_sees_the_logged_frames(weathered_root: Path, clip: str) ->
         at_input = SensorObserver(world, FRONT, SIZE, INPUT, supersample=1)
         equal, exact_psnr, cheap_psnr, at_input_psnr = 0, [], [], []
         for frame in range(FRAMES):
-            state = VehicleState(
-                float(motion.x_m[frame]), float(motion.y_m[frame]),
-                float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]),
-            )  # fmt: skip
-            poses = traffic.poses(
-                frame, np.array([ego.x_m[frame], ego.y_m[frame]]), state.yaw_rad,
-                state.speed_mps, tuple(motion.size_m[:2]),
-            )  # fmt: skip
-            signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
-            z = float(motion.z_m[frame])
-            centre = np.array([ego.x_m[frame], ego.y_m[frame]])
-            jpegs, _ = exact.observe(frame, frame, state, z, poses, signals, centre)
-            pixels, _ = cheap.observe(frame, frame, state, z, poses, signals, centre)
-            small, _ = at_input.observe(frame, frame, state, z, poses, signals, centre)
+            jpegs, _ = drive.observe(exact, frame)
+            pixels, _ = drive.observe(cheap, frame)
+            small, _ = drive.observe(at_input, frame)
             raw = log.frame_raw(log.first_frame + frame, [topics.image_topic(c) for c in FRONT])
             for camera in FRONT:
                 logged = CompressedImage.FromString(raw[topics.image_topic(camera)]).data
@@ -120,27 +110,17 @@ def test_the_gpus_reduction_gives_the_cpus_bytes_in_rain_and_at_night(weathered_
     differences = []
     for clip in ("synth_s0_c0006", "synth_s0_c0011"):
         scenario = store.read_scenario(weathered_root, clip)
-        motion, traffic, ego = ego_motion(scenario), Traffic(scenario), scenario.ego
+        drive = LoggedDrive(scenario)
         intersection_map = store.read_map(weathered_root, scenario.map_id)
         with World(intersection_map, scenario, "auto") as world:
             if world.renderer != "gl":
                 pytest.skip("the cheap path draws with the GL renderer (no EGL here)")
             observer = SensorObserver(world, FRONT, SIZE, INPUT)
             for frame in (0, FRAMES - 1):
-                state = VehicleState(
-                    float(motion.x_m[frame]), float(motion.y_m[frame]),
-                    float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]),
-                )  # fmt: skip
-                centre = np.array([ego.x_m[frame], ego.y_m[frame]])
-                poses = traffic.poses(frame, centre, state.yaw_rad, state.speed_mps,
-                                      tuple(motion.size_m[:2]))  # fmt: skip
-                signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
-                z = float(motion.z_m[frame])
                 views = []
                 for on_gpu in (False, True):
                     world.gl.reduces = on_gpu
-                    views.append(observer.observe(frame, frame, state, z, poses, signals,
-                                                  centre)[0])  # fmt: skip
+                    views.append(drive.observe(observer, frame)[0])
                 for camera in FRONT:
                     cpu, gpu = (view[camera].astype(int) for view in views)
                     differences.append(np.abs(gpu - cpu))

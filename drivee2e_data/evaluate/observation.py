@@ -26,9 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.evaluate.agent import LIDAR
-from drivee2e_data.evaluate.traffic import AgentPose
+from drivee2e_data.evaluate.traffic import AgentPose, Traffic
 from drivee2e_data.loaders.images import reduction
-from drivee2e_data.scenario import SignalState
+from drivee2e_data.scenario import Scenario, SignalState
 from drivee2e_data.sensors import lidar
 from drivee2e_data.sensors.camera import (
     NO_DEPTH,
@@ -37,7 +37,7 @@ from drivee2e_data.sensors.camera import (
     render_reduced,
     with_conditions,
 )
-from drivee2e_data.sensors.ego_state import se3
+from drivee2e_data.sensors.ego_state import ego_motion, se3
 from drivee2e_data.sensors.rig import IMAGE_HEIGHT, IMAGE_WIDTH
 from drivee2e_data.sensors.suite import SuiteOptions, configured_rig
 from drivee2e_data.sim.gl_readback import bgra_under
@@ -122,6 +122,31 @@ class SensorObserver:
                 [sweep.points_m, sweep.intensity, sweep.ring.astype(np.float32)]
             ).astype(np.float32)
         return images, points
+
+
+class LoggedDrive:
+    """A clip's ego as logged, for the observer: at a frame, its logged pose and speed, the
+    other agents where the log and `Traffic` place them around it, the signals' logged states.
+    What the parity checks and profiles drive the observer with (the closed loop's own ego is
+    the simulated one, `evaluate/episode.py`)."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        self.motion, self.traffic = ego_motion(scenario), Traffic(scenario)
+
+    def observe(
+        self, observer: SensorObserver, frame: int
+    ) -> tuple[dict[str, bytes | NDArray[np.uint8]], NDArray[np.float32] | None]:
+        """`observer.observe` at the logged frame `frame` (its noise seeded by that frame)."""
+        motion, ego = self.motion, self.scenario.ego
+        state = VehicleState(float(motion.x_m[frame]), float(motion.y_m[frame]),
+                             float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]))  # fmt: skip
+        centre = np.array([ego.x_m[frame], ego.y_m[frame]])
+        poses = self.traffic.poses(frame, centre, state.yaw_rad, state.speed_mps,
+                                   tuple(motion.size_m[:2]))  # fmt: skip
+        signals = {signal.signal_id: signal.state_at(frame) for signal in self.scenario.signals}
+        z = float(motion.z_m[frame])
+        return observer.observe(frame, frame, state, z, poses, signals, centre)
 
 
 def planar(rgb: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:

@@ -17,13 +17,8 @@ import pstats
 import time
 from pathlib import Path
 
-import numpy as np
-
 from drivee2e_data import store
-from drivee2e_data.evaluate.observation import SensorObserver
-from drivee2e_data.evaluate.traffic import Traffic
-from drivee2e_data.sensors.ego_state import ego_motion
-from drivee2e_data.sim.vehicle import VehicleState
+from drivee2e_data.evaluate.observation import LoggedDrive, SensorObserver
 from drivee2e_data.sim.world import World
 
 FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
@@ -39,26 +34,17 @@ def main() -> None:
     args = parser.parse_args()
     input_size = tuple(int(v) for v in args.input.split("x"))
     scenario = store.read_scenario(args.data, args.clip)
-    motion, traffic, ego = ego_motion(scenario), Traffic(scenario), scenario.ego
-    steps = min(args.steps, len(motion.x_m) - 1)
+    drive = LoggedDrive(scenario)
+    steps = min(args.steps, len(drive.motion.x_m) - 1)
     with World(store.read_map(args.data, scenario.map_id), scenario, "auto") as world:
         observer = SensorObserver(world, FRONT, (1600, 900), input_size)
 
-        def step(frame: int) -> None:
-            state = VehicleState(float(motion.x_m[frame]), float(motion.y_m[frame]),
-                                 float(motion.yaw_rad[frame]), float(motion.speed_mps[frame]))  # fmt: skip
-            centre = np.array([ego.x_m[frame], ego.y_m[frame]])
-            poses = traffic.poses(frame, centre, state.yaw_rad, state.speed_mps,
-                                  tuple(motion.size_m[:2]))  # fmt: skip
-            signals = {s.signal_id: s.state_at(frame) for s in scenario.signals}
-            observer.observe(frame, frame, state, float(motion.z_m[frame]), poses, signals, centre)
-
-        step(0)
+        drive.observe(observer, 0)
         profile = cProfile.Profile()
         start = time.perf_counter()
         profile.enable()
         for frame in range(1, steps + 1):
-            step(frame)
+            drive.observe(observer, frame)
         profile.disable()
         seconds = time.perf_counter() - start
     print(f"{args.clip}, {world.renderer} renderer, input {args.input}: "
