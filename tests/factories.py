@@ -118,6 +118,16 @@ def front_view(world, frame: int, size: tuple[int, int] = (160, 90), **options):
     return world.render(eye, target, *size, 40.0, **options)
 
 
+def pose_on_cpu(world) -> None:
+    """A GL `world` whose renderer poses the actors' models on the CPU (`PlacedModel`), as where
+    GL draws on the CPU, whatever its other choices."""
+    world.gl.poses_on_gpu = False
+    world.gl.set_models(world.body_models())
+    if world.gl.posed is not None:
+        world.gl.posed.release()
+        world.gl.posed = None
+
+
 def egl_world(intersection_map: IntersectionMap, scenario: Scenario):
     """A `World` drawn by pybullet's EGL plugin; the test is skipped where the plugin does not
     load."""

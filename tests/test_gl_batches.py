@@ -18,7 +18,7 @@ from drivee2e_data.sim.gl_renderer import gl_available, look_at, shadow_matrix
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
 from drivee2e_data.sim.world import World
-from tests.factories import front_view, synthetic_clip
+from tests.factories import front_view, pose_on_cpu, synthetic_clip
 
 
 def _triangle_rows(centres: np.ndarray, material: int) -> np.ndarray:
@@ -148,6 +148,7 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     for cull in (True, False):
         monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda cull=cull: cull)
         with World(intersection_map, scenario, renderer="gl") as world:
+            pose_on_cpu(world)  # the models posed alike (`test_gl_posed` compares the two)
             images[cull] = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
             batches = world.gl.static_batches
             # a program per material group on the CPU, one for all of them on a GPU

@@ -21,6 +21,7 @@ import ctypes
 import ctypes.util
 import functools
 import logging
+import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -43,6 +44,13 @@ from drivee2e_data.sim.gl_batches import (
     in_draw_order,
     level_of_detail,
 )
+from drivee2e_data.sim.gl_posed import (
+    JOINT_TEXTURE_UNIT,
+    POSED_FORMAT,
+    POSED_INPUTS,
+    POSED_POSITION_ONLY,
+    PosedModels,
+)
 from drivee2e_data.sim.gl_readback import PendingPixels, PixelReads, Read
 from drivee2e_data.sim.gl_reduce import ViewReduction, reduced_on_cpu, samples_size
 from drivee2e_data.sim.gl_vertices import (
@@ -61,6 +69,7 @@ from drivee2e_data.sim.twin_plan import TwinMesh
 
 LOG = logging.getLogger(__name__)
 SHADER_DIR = Path(__file__).with_name("shaders")
+_INCLUDE = re.compile(r'^#include "([\w.]+)"$', re.MULTILINE)
 CLEAR_RGB = (0.70, 0.78, 0.90)  # background of a view without a sky (labels)
 LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's daylight; ids only
 # the colour attachments each look's shaders write, in the order of their output locations
@@ -87,13 +96,17 @@ HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) ar
 
 
 def shader_source(name: str, defines: Sequence[str] = ()) -> str:
-    """A shader file's text; the fragment shaders of the sky and the scene begin with
-    common.glsl's (noise, sky colour), after `defines` (scene.frag's variants)."""
-    text = (SHADER_DIR / name).read_text()
+    """A shader file's text with `defines` after its version line and each `#include "F"` line
+    replaced by file F's text (GLSL has no includes); the fragment shaders of the sky and the
+    scene begin with common.glsl's (noise, sky colour), after `defines` (scene.frag's
+    variants)."""
+    text = _INCLUDE.sub(lambda match: (SHADER_DIR / match[1]).read_text(),
+                        (SHADER_DIR / name).read_text())  # fmt: skip
+    header = "".join(f"#define {define}\n" for define in defines)
     if name in ("sky.frag", "scene.frag"):
-        header = "#version 330\n" + "".join(f"#define {define}\n" for define in defines)
-        return header + (SHADER_DIR / "common.glsl").read_text() + text
-    return text
+        return "#version 330\n" + header + (SHADER_DIR / "common.glsl").read_text() + text
+    version, _, rest = text.partition("\n")
+    return version + "\n" + header + rest
 
 
 def scene_variant(look: ShaderLook) -> tuple[str, ...]:
@@ -412,7 +425,9 @@ class GLRenderer:
     shine them whatever the light. The shaders (`sim/shaders`) draw materials, the sky, the
     sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`. With
     `cull` (None: where GL draws on the CPU, `rasterises_on_cpu`) each view draws only the
-    cells of the scene its frustum meets (`gl_batches`)."""
+    cells of the scene its frustum meets (`gl_batches`). With `pose_on_gpu` (None: where the
+    scene is not cut into cells, a GPU) the actors' models are posed by the vertex shader
+    (`gl_posed`), else on the CPU (`gl_vertices.PlacedModel`)."""
 
     def __init__(
         self,
@@ -424,6 +439,7 @@ class GLRenderer:
         street_lamps: Sequence[tuple[float, float, float]] = (),
         wear: WearRaster | None = None,
         cull: bool | None = None,
+        pose_on_gpu: bool | None = None,
     ) -> None:
         import moderngl
 
@@ -441,6 +457,9 @@ class GLRenderer:
             # cut into cells that each view tests against its frustum (None: where GL draws
             # on the CPU); drawn whole otherwise
             self.cull = rasterises_on_cpu() if cull is None else cull
+            # llvmpipe shades every vertex of a draw on the calling thread, once per view (13
+            # a collection frame): there the CPU poses the models once per state instead
+            self.poses_on_gpu = not self.cull if pose_on_gpu is None else pose_on_gpu
             self.static_vertices = static_vertices(static_meshes)
             self.static_anchors = static_anchors(static_meshes)
             self.static_buffer = None
@@ -479,6 +498,7 @@ class GLRenderer:
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
         self.placers: dict[int, PlacedModel] = {}  # each model body's posing, made once
+        self.posed: PosedModels | None = None  # the models posed on the GPU (`poses_on_gpu`)
         # each model's vertices in the world at its last pose (position, orientation and
         # animation): a frame syncs twice (the cameras, then the top view with the ego shown),
         # only the ego moves between the two, and stationary actors keep their vertices
@@ -518,6 +538,15 @@ class GLRenderer:
         """The vertex array feeding a program from the static or dynamic buffer (made once per
         pair, again after the dynamic buffer grows)."""
         array = self.arrays.get((buffer_name, program_key))
+        if array is None and buffer_name == "posed":
+            assert self.posed is not None
+            if program_key == "shadow":
+                content = [(self.posed.buffer, POSED_POSITION_ONLY, "in_position", "in_joint")]
+            else:
+                content = [(self.posed.buffer, POSED_FORMAT, *POSED_INPUTS)]
+            array = self.context.vertex_array(self._posed_program(program_key), content,
+                                              skip_errors=True)  # fmt: skip
+            self.arrays[(buffer_name, program_key)] = array
         if array is None:
             buffer = self.static_buffer if buffer_name == "static" else self.dynamic_buffer
             if program_key == "shadow":
@@ -534,6 +563,27 @@ class GLRenderer:
                 )
             self.arrays[(buffer_name, program_key)] = array
         return array
+
+    def _posed_program(self, program_key: object):
+        """The program of `program_key` ("shadow", "labels" or the scene's defines) compiled to
+        draw the models posed on the GPU (`gl_posed`)."""
+        if program_key == "shadow":
+            return _program("shadow.vert", "shadow.frag", (), ("POSED",))
+        if program_key == "labels":
+            return _program("scene.vert", "labels.frag", (), ("POSED",))
+        assert isinstance(program_key, tuple)
+        return _program("scene.vert", "scene.frag", program_key, ("POSED",))
+
+    def _posed_in_use(self, program_keys: Sequence[object]) -> list:
+        """The posed programs of `program_keys` where models are posed on the GPU, their joints'
+        texture bound (none elsewhere): what a pass sets its uniforms into besides its own."""
+        if self.posed is None:
+            return []
+        self.posed.texture.use(location=JOINT_TEXTURE_UNIT)
+        programs = [self._posed_program(key) for key in program_keys]
+        for program in programs:
+            _set(program, "joints", JOINT_TEXTURE_UNIT)
+        return programs
 
     def set_look(self, look: ShaderLook) -> None:
         """The clip's sky, light and weather (the uniforms of `sim/shaders`)."""
@@ -648,6 +698,13 @@ class GLRenderer:
         self.models = dict(models)
         self.placers = {}
         self.placed = {}
+        if self.poses_on_gpu:
+            with current(self.context):
+                if self.posed is not None:
+                    for key in [k for k in self.arrays if k[0] == "posed"]:
+                        self.arrays.pop(key).release()
+                    self.posed.release()
+                self.posed = PosedModels(self.context, self.models)
 
     def forget_bodies(self) -> None:
         """Read every moving body's shapes again at the next sync: bodies were removed and made
@@ -675,13 +732,17 @@ class GLRenderer:
                    for k in range(p.getNumBodies(physicsClientId=client))]  # fmt: skip
         moving = [body for body in present if body not in self.static]
         parts = [np.zeros((0, FLOATS_PER_VERTEX), np.float32)]
+        placements = []  # the models the GPU poses
         for body in moving:
             position, orientation = p.getBasePositionAndOrientation(body, physicsClientId=client)
             if position[2] < HIDDEN_BELOW_M:
                 continue
             if body in self.models:
                 animation = animations.get(body, Animation())
-                parts.append(self._placed(body, position, orientation, animation))
+                if self.posed is not None:
+                    placements.append((body, position, orientation, animation))
+                else:
+                    parts.append(self._placed(body, position, orientation, animation))
             else:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
@@ -708,6 +769,8 @@ class GLRenderer:
                 self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
             if vertices.nbytes:
                 self.dynamic_buffer.write(vertices)  # its bytes as they lie: no copy
+            if self.posed is not None:
+                self.posed.pose(placements)
         self.lights = lights
         self.synced = state
 
@@ -767,11 +830,14 @@ class GLRenderer:
         return framebuffer
 
     def _in_view(
-        self, matrix: NDArray[np.float64], buffers: tuple[str, ...] = ("dynamic", "static")
+        self,
+        matrix: NDArray[np.float64],
+        buffers: tuple[str, ...] = ("dynamic", "posed", "static"),
     ) -> Iterator[tuple[str, DrawBatches, NDArray]]:
-        """Each of `buffers` ("dynamic", then "static") with its batches and which of them the
+        """Each of `buffers` ("dynamic", "posed", then "static") with its batches and which of them the
         view of `matrix` (world to clip space) may see: tested where culling, else all."""
-        for buffer_name, batches in (("dynamic", self.dynamic_batches),
+        posed = self.posed.batches if self.posed is not None else DrawBatches.empty()
+        for buffer_name, batches in (("dynamic", self.dynamic_batches), ("posed", posed),
                                      ("static", self.static_batches)):  # fmt: skip
             if buffer_name not in buffers:
                 continue
@@ -799,7 +865,7 @@ class GLRenderer:
             visible = visible & detail
             if not visible.any():
                 continue
-            if buffer_name == "dynamic":
+            if buffer_name != "static":
                 self.context.disable(moderngl.CULL_FACE)
             else:
                 self.context.enable(moderngl.CULL_FACE)
@@ -822,16 +888,18 @@ class GLRenderer:
         copy = _depth_copy()
         self.context.enable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
-        self.shadow_program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
+        for program in (self.shadow_program, *self._posed_in_use(["shadow"])):
+            program["shadow_matrix"].write(matrix.T.astype(np.float32).tobytes())
+        moving = ("dynamic", "posed") if self.posed is not None else ("dynamic",)
         if copy is None:
-            self._cast(self.shadow_framebuffer, matrix, ("dynamic", "static"))
+            self._cast(self.shadow_framebuffer, matrix, (*moving, "static"))
             return
         key = matrix.tobytes()
         if key != self.static_shadow_key:
             self._cast(self.static_shadow_framebuffer, matrix, ("static",))
             self.static_shadow_key = key
         copy(self.static_shadow_framebuffer, self.shadow_framebuffer, SHADOW_MAP_PX)
-        self._cast(self.shadow_framebuffer, matrix, ("dynamic",), clear=False)
+        self._cast(self.shadow_framebuffer, matrix, moving, clear=False)
 
     def _cast(
         self, framebuffer, matrix: NDArray[np.float64], buffers: tuple[str, ...], clear=True
@@ -964,7 +1032,8 @@ class GLRenderer:
         self.context.front_face = "cw"
         if look == "labels":
             self.context.enable(moderngl.DEPTH_TEST)
-            self.labels_program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+            for program in (self.labels_program, *self._posed_in_use(["labels"])):
+                program["mvp"].write(matrix.T.astype(np.float32).tobytes())
             self._draw_geometry("labels", matrix, camera_position)
         else:
             # shadows, night, wet and fog are compiled in: the variant the look needs
@@ -972,10 +1041,13 @@ class GLRenderer:
             if shader_look.lamps_on:
                 self._light_texture(shader_look)
             groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
+            if self.posed is not None:
+                groups.update(self.posed.batches.group.tolist())
             if not casters_drawn:
                 groups.discard(SHADOW_ONLY)
             defines = {self._scene_defines(group, variant) for group in groups}
             programs = [self._scene_program(key) for key in sorted(defines)]
+            programs += self._posed_in_use(sorted(defines))
             self._apply_look(programs, shader_look, camera_position, far_m,
                              {"mvp": matrix, "shadow_matrix": sun_matrix})  # fmt: skip
             rotation_only = view_matrix.copy()
@@ -1061,6 +1133,9 @@ class GLRenderer:
             for array in self.arrays.values():
                 array.release()
             self.reduction.release()
+            if self.posed is not None:
+                self.posed.release()
+                self.posed = None
             for resource in (self.static_buffer, self.dynamic_buffer, self.sky_array,
                              self.sky_buffer, self.shadow_framebuffer, self.shadow_texture,
                              self.static_shadow_framebuffer, self.static_shadow_texture,
@@ -1076,11 +1151,14 @@ def _gather_program():
 
 
 @functools.cache
-def _program(vertex: str, fragment: str, defines: tuple[str, ...] = ()):
-    """The program of two shader files (`defines`: the fragment shader's variant), compiled once
-    per process for its one context (`_context`) and kept for every world after: each world
-    draws with up to sixteen variants, and llvmpipe takes tens of milliseconds to compile one."""
-    return _context().program(vertex_shader=shader_source(vertex),
+def _program(
+    vertex: str, fragment: str, defines: tuple[str, ...] = (), vertex_defines: tuple[str, ...] = ()
+):
+    """The program of two shader files (`defines`: the fragment shader's variant;
+    `vertex_defines` the vertex shader's), compiled once per process for its one context
+    (`_context`) and kept for every world after: each world draws with up to sixteen variants,
+    and llvmpipe takes tens of milliseconds to compile one."""
+    return _context().program(vertex_shader=shader_source(vertex, vertex_defines),
                               fragment_shader=shader_source(fragment, defines))  # fmt: skip
 
 

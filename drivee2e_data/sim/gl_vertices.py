@@ -93,7 +93,7 @@ def primitive_triangles(
     raise ValueError(f"pybullet visual geometry {geometry}: the GL renderer draws 2, 3, 4 and 5")
 
 
-def _rotation(quaternion: Sequence[float]) -> NDArray[np.float64]:
+def quaternion_rotation(quaternion: Sequence[float]) -> NDArray[np.float64]:
     """3x3 rotation of a pybullet quaternion (x, y, z, w)."""
     x, y, z, w = quaternion
     return np.array(
@@ -117,7 +117,7 @@ class _Body:
         for index, data in enumerate(shape_data):
             local_position, local_orientation = data[5], data[6]
             triangles, triangle_normals = primitive_triangles(data[2], data[3], data[4].decode())
-            rotation = _rotation(local_orientation)
+            rotation = quaternion_rotation(local_orientation)
             positions.append(triangles @ rotation.T + np.asarray(local_position))
             normals.append(triangle_normals @ rotation.T)
             shapes.append(np.full(len(triangles), index, np.int32))
@@ -140,7 +140,7 @@ class _Body:
         key = (position, orientation, lamp, self.colours.tobytes())
         if self.last is not None and self.last[0] == key:
             return self.last[1]
-        rotation = _rotation(orientation)
+        rotation = quaternion_rotation(orientation)
         out = np.empty((len(self.mesh.positions), FLOATS_PER_VERTEX), np.float32)
         out[:, 0:3] = self.mesh.positions @ rotation.T + np.asarray(position)
         out[:, 3:6] = self.mesh.normals @ rotation.T
@@ -185,6 +185,20 @@ def static_anchors(meshes: Sequence[TwinMesh]) -> NDArray[np.float64]:
     return np.concatenate(parts)
 
 
+def placed_joints(
+    model: ModelMesh, animation, position: Sequence[float], orientation: Sequence[float]
+) -> NDArray[np.float64]:
+    """`(J, 3, 4)` each joint's transform from the model frame to the world, `[R | t]`: the
+    model posed by `animation` (`models.Animation`) at a body's pose (pybullet's position and
+    quaternion)."""
+    rotation = quaternion_rotation(orientation)
+    transforms = joint_transforms(model, animation)  # a rigid model's: the identity
+    placed = np.empty_like(transforms)
+    placed[:, :, :3] = rotation @ transforms[:, :, :3]
+    placed[:, :, 3] = transforms[:, :, 3] @ rotation.T + np.asarray(position, np.float64)
+    return placed
+
+
 class PlacedModel:
     """One body's model, posed and placed each frame in one pass (`models.pose` placed at
     the body's pose, the reference, in about a quarter of its time): its triangles sorted by
@@ -225,10 +239,8 @@ class PlacedModel:
         """`(N, FLOATS_PER_VERTEX)` the model posed by `animation` (`models.Animation`) at a
         body's pose (pybullet's position and quaternion), in world coordinates."""
         model = self.model
-        rotation = _rotation(orientation)
-        transforms = joint_transforms(model, animation)  # a rigid model's: the identity
-        linear = rotation @ transforms[:, :, :3]  # (J, 3, 3) model to world
-        offset = transforms[:, :, 3] @ rotation.T + np.asarray(position, np.float64)  # (J, 3)
+        placed = placed_joints(model, animation, position, orientation)
+        linear, offset = placed[:, :, :3], placed[:, :, 3]
         # per joint the (7, 6) matrix taking [p, 1, n] to [R p + t, R n]
         products = np.zeros((len(linear), 7, 6), np.float32)
         products[:, 0:3, 0:3] = linear.transpose(0, 2, 1)

@@ -2,11 +2,13 @@
 GPU host's renderer does it (the scene drawn whole: no cells, `cull` off), measured on any host:
 the CPU's share of a closed-loop or collection step that no GPU takes over.
 
-    python scripts/dev/bench_sync.py DATA CLIP [--frames 60]
+    python scripts/dev/bench_sync.py DATA CLIP [--frames 60] [--pose-on gpu|cpu]
 
 DATA holds scenario bundles (`drivee2e synth`). Prints the mean and median ms a frame over the
-clip's first frames (the first five, which make the models' posers, left out). Run two versions
-alternately to compare them (docs/benchmarks.md).
+clip's first frames (the first five, which make the models' posers, left out). `--pose-on`:
+where the actors' models are posed (a GPU host's default: the GPU, `gl_posed`; the CPU's
+`PlacedModel` before). Run two versions or both ways alternately to compare them
+(docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -26,11 +28,14 @@ def main() -> None:
     parser.add_argument("data", type=Path)
     parser.add_argument("clip")
     parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--pose-on", choices=("gpu", "cpu"), default="gpu")
     args = parser.parse_args()
     scenario = store.read_scenario(args.data, args.clip)
     with World(store.read_map(args.data, scenario.map_id), scenario, "gl") as world:
         world.gl.cull = False  # as on a GPU
+        world.gl.poses_on_gpu = args.pose_on == "gpu"
         world.gl.forget_bodies()
+        world.gl.set_models(world.body_models())
         seconds = []
         for frame in range(1, min(args.frames, scenario.ego.x_m.shape[0])):
             world.set_time(frame)
@@ -38,7 +43,7 @@ def main() -> None:
             world.gl.sync(world.state, world.animations, world.scene_lights)
             seconds.append(time.perf_counter() - start)
     kept = np.asarray(seconds[5:]) * 1000
-    print(f"{args.clip}: sync {kept.mean():.2f} ms a frame (median {np.median(kept):.2f}) "
+    print(f"{args.clip}, posed on the {args.pose_on.upper()}: sync {kept.mean():.2f} ms a frame (median {np.median(kept):.2f}) "
           f"over {len(kept)} frames")  # fmt: skip
 
 

@@ -419,12 +419,17 @@ def joint_transforms(mesh: ModelMesh, animation: Animation) -> NDArray[np.float6
     return transforms
 
 
-def emission(mesh: ModelMesh, animation: Animation) -> NDArray[np.float32]:
-    """`(N,)` each vertex's emission in [0, 1]: headlights when on, tail lights dim with the
-    headlights and full when braking."""
+def emission_levels(animation: Animation) -> tuple[float, float, float]:
+    """The emission in [0, 1] of each kind of vertex (`ModelMesh.lights`: none, headlight,
+    tail light): headlights when on, tail lights dim with the headlights and full when
+    braking."""
     tail = 1.0 if animation.brake else (TAIL_GLOW if animation.headlights else 0.0)
-    levels = np.array([0.0, 1.0 if animation.headlights else 0.0, tail], np.float32)
-    return levels[mesh.lights]
+    return 0.0, 1.0 if animation.headlights else 0.0, tail
+
+
+def emission(mesh: ModelMesh, animation: Animation) -> NDArray[np.float32]:
+    """`(N,)` each vertex's emission in [0, 1] (`emission_levels`)."""
+    return np.array(emission_levels(animation), np.float32)[mesh.lights]
 
 
 def pose(

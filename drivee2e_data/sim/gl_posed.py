@@ -1,0 +1,146 @@
+"""The actors' procedural models posed on the GPU: each model uploaded once, in its own frame,
+and at every state only its joints' transforms from the model frame to the world.
+
+`gl_vertices.PlacedModel` poses and places a model on the CPU: every vertex of every shown actor
+moved, gathered into one buffer and uploaded at each state. On a GPU host that was the largest
+part of a closed-loop step's CPU (posing, ordering and uploading the moving bodies 13.3 of a
+worker's 24 ms observing, H200 host, 2026-11-29), while the GPU moved the same vertices again
+in its vertex stage at no cost worth counting. Here the models lie in one buffer made when the
+world's actors are (`VERTEX_FORMAT` with the joint's row after the position, see
+`POSED_FORMAT`), and the scene, labels and shadow shaders compiled with `POSED` read each
+vertex's `[R | t]` from a float texture (`shaders/scene.vert`, `shadow.vert`): four texels a
+joint, the three rows of its transform and the emission of its model's head and tail lights.
+A state writes one texel row per joint of the shown models (a few kilobytes) and draws the
+shown models' vertex ranges, neighbours joined. The vertices are the CPU's to the float32
+rounding of the shader's products (`PlacedModel` multiplies the same float32 matrices).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivee2e_data.sim.gl_batches import DrawBatches
+from drivee2e_data.sim.gl_vertices import placed_joints
+from drivee2e_data.sim.models import Animation, ModelMesh
+from drivee2e_data.sim.models.mesh import emission_levels
+
+# position (3), joint row (1), normal (3), colour (3), body id + 1, light kind (`ModelMesh.lights`:
+# the shader looks its emission up in the joint's texels), material (`Material`)
+POSED_FLOATS_PER_VERTEX = 13
+POSED_FORMAT = "3f 1f 3f 3f 1f 1f 1f"
+POSED_INPUTS = (
+    "in_position", "in_joint", "in_normal", "in_colour", "in_body", "in_emission", "in_material",
+)  # fmt: skip
+POSED_POSITION_ONLY = f"3f 1f {4 * (POSED_FLOATS_PER_VERTEX - 4)}x"  # the shadow pass's inputs
+# the joints' texture: JOINTS_PER_ROW joints (four RGBA float texels each) to a texture row, so
+# that no clip's joints run past a texture's largest width (GL guarantees 1024)
+TEXELS_PER_JOINT = 4
+JOINTS_PER_ROW = 256
+JOINT_TEXTURE_UNIT = 3  # after the shadow map, the ground's wear and the lamps' light
+
+
+def model_vertices(model: ModelMesh, body: int, first_joint: int) -> NDArray[np.float32]:
+    """`(N, POSED_FLOATS_PER_VERTEX)` the vertices of `body`'s `model` in its model frame, in the
+    model's order, each naming the texture row of its joint (`first_joint` + the joint)."""
+    out = np.empty((len(model.positions), POSED_FLOATS_PER_VERTEX), np.float32)
+    out[:, 0:3] = model.positions
+    out[:, 3] = first_joint + np.asarray(model.joints, np.int64)
+    out[:, 4:7] = model.normals
+    out[:, 7:10] = model.colours
+    out[:, 10] = body + 1
+    out[:, 11] = model.lights
+    out[:, 12] = model.materials
+    return out
+
+
+def joint_texels(
+    model: ModelMesh, animation: Animation, position: Sequence[float], orientation: Sequence[float]
+) -> NDArray[np.float32]:
+    """`(J, TEXELS_PER_JOINT, 4)` what the shader reads of each joint of `model` posed by
+    `animation` at a body's pose (pybullet's position and quaternion): the three rows of its
+    model-to-world `[R | t]`, then the emission of the model's headlights and tail lights."""
+    texels = np.zeros((len(model.joint_table), TEXELS_PER_JOINT, 4), np.float32)
+    texels[:, 0:3, :] = placed_joints(model, animation, position, orientation)
+    texels[:, 3, 0:2] = emission_levels(animation)[1:]
+    return texels
+
+
+class PosedModels:
+    """Every actor body's model in one vertex buffer of `context`, posed by `pose` (see the
+    module's docstring). `batches`: the shown models' vertex ranges, one batch per run of
+    neighbours, every batch in material group 0 (a GPU draws all groups with one program) and
+    unbounded (a model may show in any view)."""
+
+    def __init__(self, context, models: Mapping[int, ModelMesh]) -> None:
+        self.context = context
+        self.models = dict(models)
+        parts = [np.zeros((0, POSED_FLOATS_PER_VERTEX), np.float32)]
+        # body -> (first vertex, vertex count, first joint row)
+        self.ranges: dict[int, tuple[int, int, int]] = {}
+        vertex = joint = 0
+        for body in sorted(self.models):
+            model = self.models[body]
+            parts.append(model_vertices(model, body, joint))
+            self.ranges[body] = (vertex, len(model.positions), joint)
+            vertex += len(model.positions)
+            joint += len(model.joint_table)
+        vertices = np.concatenate(parts)
+        rows = max(1, -(-joint // JOINTS_PER_ROW))
+        self.texels = np.zeros((rows * JOINTS_PER_ROW, TEXELS_PER_JOINT, 4), np.float32)
+        self.buffer = context.buffer(vertices.tobytes() or b"\0" * 4 * POSED_FLOATS_PER_VERTEX)
+        self.texture = context.texture(
+            (JOINTS_PER_ROW * TEXELS_PER_JOINT, rows), 4, self.texels.tobytes(), dtype="f4"
+        )
+        import moderngl
+
+        self.texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.batches = DrawBatches.empty()
+        # each body's texels at its last pose: most actors stand still or stay hidden
+        self.last: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
+
+    def pose(
+        self, placements: Sequence[tuple[int, Sequence[float], Sequence[float], Animation]]
+    ) -> None:
+        """The models shown now, each `(body, position, quaternion, animation)`: their joints'
+        texels written and uploaded, `batches` made of their vertex ranges; every other model
+        is not drawn."""
+        shown = []
+        for body, position, orientation, animation in placements:
+            key = (tuple(position), tuple(orientation), animation)
+            last = self.last.get(body)
+            if last is None or last[0] != key:
+                texels = joint_texels(self.models[body], animation, position, orientation)
+                last = self.last[body] = (key, texels)
+                first_joint = self.ranges[body][2]
+                self.texels[first_joint : first_joint + len(texels)] = texels
+            shown.append(self.ranges[body][:2])
+        self.texture.write(self.texels.tobytes())
+        self.batches = runs_of(sorted(shown))
+
+    def release(self) -> None:
+        self.buffer.release()
+        self.texture.release()
+
+
+def runs_of(ranges: Sequence[tuple[int, int]]) -> DrawBatches:
+    """`ranges` `(first vertex, count)` in buffer order as batches of material group 0, those that
+    touch joined, each unbounded."""
+    firsts: list[int] = []
+    counts: list[int] = []
+    for first, count in ranges:
+        if firsts and firsts[-1] + counts[-1] == first:
+            counts[-1] += count
+        else:
+            firsts.append(first)
+            counts.append(count)
+    runs = len(firsts)
+    return DrawBatches(
+        group=np.zeros(runs, np.int64),
+        first=np.asarray(firsts, np.int64),
+        count=np.asarray(counts, np.int64),
+        low_m=np.full((runs, 3), -np.inf),
+        high_m=np.full((runs, 3), np.inf),
+    )

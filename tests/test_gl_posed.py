@@ -1,0 +1,115 @@
+"""The actors' models posed on the GPU (`gl_posed`): the texels a vertex reads place it where the
+CPU's placing does, and a frame drawn that way is the frame posed on the CPU."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivee2e_data.scenario import AgentClass
+from drivee2e_data.sim import gl_renderer
+from drivee2e_data.sim.gl_posed import JOINTS_PER_ROW, joint_texels, model_vertices, runs_of
+from drivee2e_data.sim.gl_renderer import gl_available
+from drivee2e_data.sim.gl_vertices import PlacedModel
+from drivee2e_data.sim.models import Animation, agent_model
+from drivee2e_data.sim.world import World
+from tests.factories import front_view, pose_on_cpu, synthetic_clip
+
+
+def _shaded(vertices: np.ndarray, texels: np.ndarray, first_joint: int) -> np.ndarray:
+    """What `shaders/posed.glsl` makes of `model_vertices` rows, in numpy: world positions,
+    normals and emission `(N, 7)`."""
+    rows = texels[vertices[:, 3].astype(np.int64) - first_joint]  # (N, 4, 4)
+    point = np.concatenate([vertices[:, 0:3], np.ones((len(vertices), 1), np.float32)], axis=1)
+    position = np.einsum("nij,nj->ni", rows[:, 0:3, :], point)
+    normal = np.einsum("nij,nj->ni", rows[:, 0:3, 0:3], vertices[:, 4:7])
+    kind = vertices[:, 11].astype(np.int64)
+    levels = np.stack([np.zeros(len(rows)), rows[:, 3, 0], rows[:, 3, 1]], axis=1)
+    emission = levels[np.arange(len(rows)), kind]
+    return np.concatenate([position, normal, emission[:, None]], axis=1)
+
+
+@pytest.mark.parametrize(
+    ("agent_class", "name", "size"),
+    [(AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)), (AgentClass.BUS, "bus", (11.0, 2.5, 3.2)),
+     (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
+     (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7))],
+)  # fmt: skip
+@pytest.mark.parametrize("lights", [(False, False), (True, False), (True, True)])
+def test_a_vertex_read_through_its_joints_texels_lands_where_the_cpu_places_it(
+    agent_class, name, size, lights
+):
+    """Each vertex moved by its joint's texels (the shader's arithmetic, here in numpy) is the
+    vertex `PlacedModel` places for the same animation and body pose, within float32 rounding:
+    position, normal and emission (headlights, tail lights dim or braking), with the model's
+    colours, body id and materials carried as they are."""
+    model = agent_model(agent_class, name, size, "posed")
+    headlights, brake = lights
+    animation = Animation(wheel_angle_rad=2.1, steer_rad=0.15, walk_phase_rad=1.3,
+                          walk_amount=0.8, brake=brake, headlights=headlights)  # fmt: skip
+    yaw, position = 0.7, (12.0, -3.0, 0.4)
+    quaternion = (0.0, 0.0, float(np.sin(yaw / 2)), float(np.cos(yaw / 2)))
+    first_joint = 2 * JOINTS_PER_ROW + 3  # a joint row past the texture's first line
+    vertices = model_vertices(model, body=7, first_joint=first_joint)
+    texels = joint_texels(model, animation, position, quaternion)
+    shaded = _shaded(vertices, texels, first_joint)
+    placer = PlacedModel(model, body=7)
+    placed = placer.vertices(animation, position, quaternion)  # in joint order
+    order = placer.order
+    assert np.allclose(shaded[order, 0:3], placed[:, 0:3], atol=2e-5)
+    assert np.allclose(shaded[order, 3:6], placed[:, 3:6], atol=2e-6)
+    assert np.array_equal(shaded[order, 6].astype(np.float32), placed[:, 10])
+    assert np.array_equal(vertices[order, 7:10], placed[:, 6:9])  # colours
+    assert np.all(vertices[:, 10] == 8)  # body id + 1
+    assert np.array_equal(vertices[order, 12], placed[:, 11])  # materials
+    lit = (headlights or brake) and bool((np.asarray(model.lights) > 0).any())
+    assert (shaded[:, 6] > 0).any() == lit
+
+
+def test_neighbouring_ranges_are_drawn_as_one():
+    batches = runs_of([(0, 10), (10, 5), (30, 4), (34, 6), (50, 1)])
+    assert batches.first.tolist() == [0, 30, 50]
+    assert batches.count.tolist() == [15, 10, 1]
+    assert np.all(batches.group == 0) and np.all(np.isinf(batches.low_m))
+    assert len(runs_of([]).first) == 0
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    return synthetic_clip(tmp_path_factory.mktemp("posed_site"))
+
+
+@pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
+def test_frames_posed_on_the_gpu_are_the_frames_posed_on_the_cpu(site, monkeypatch):
+    """A GPU host's renderer (no cells) poses the actors in its vertex shader; frames of the
+    same clip drawn that way and with the models posed on the CPU show the same bodies at the
+    same pixels, depths to a centimetre, and colours the same but on a few edge pixels (the
+    shader's and numpy's float32 products round apart), before and after a replay."""
+    intersection_map, scenario = site
+    monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda: False)
+    frames = (5, 40, 80)
+    images = {}
+    for on_gpu in (True, False):
+        with World(intersection_map, scenario, renderer="gl") as world:
+            if not on_gpu:
+                pose_on_cpu(world)
+            actor_bodies = set(world.bodies.values())
+            images[on_gpu] = [front_view(world, f, (320, 180), segmentation=True, near_m=0.5)
+                              for f in frames]  # fmt: skip
+            if on_gpu:
+                posed = world.gl.posed
+                assert posed is not None and len(posed.batches.first) > 0
+                # the CPU placed no model but the hidden ego's, which casts its shadow alone
+                assert set(world.gl.placed) == {world.bodies[scenario.ego.track_id]}
+                world.replay(scenario)
+                assert world.gl.posed is not posed  # the new clip's models
+                again = front_view(world, frames[-1], (320, 180), segmentation=True, near_m=0.5)
+                assert np.array_equal(again.rgb, images[True][-1].rgb)
+    actors = 0
+    for gpu, cpu in zip(images[True], images[False], strict=True):
+        assert np.array_equal(gpu.segmentation, cpu.segmentation)
+        assert np.abs(gpu.depth_m - cpu.depth_m).max() < 0.01
+        apart = np.abs(gpu.rgb.astype(int) - cpu.rgb.astype(int)).max(axis=2) > 1
+        assert apart.mean() < 1e-3
+        actors += len(set(np.unique(gpu.segmentation).tolist()) & actor_bodies)
+    assert actors >= 3  # the frames show actors at all
