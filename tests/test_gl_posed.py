@@ -8,7 +8,13 @@ import pytest
 
 from drivee2e_data.scenario import AgentClass
 from drivee2e_data.sim import gl_renderer
-from drivee2e_data.sim.gl_posed import JOINTS_PER_ROW, joint_texels, model_vertices, runs_of
+from drivee2e_data.sim.gl_posed import (
+    JOINTS_PER_ROW,
+    JointTable,
+    joint_texels,
+    model_vertices,
+    runs_of,
+)
 from drivee2e_data.sim.gl_renderer import gl_available
 from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, agent_model
@@ -64,6 +70,38 @@ def test_a_vertex_read_through_its_joints_texels_lands_where_the_cpu_places_it(
     assert np.array_equal(vertices[order, 12], placed[:, 11])  # materials
     lit = (headlights or brake) and bool((np.asarray(model.lights) > 0).any())
     assert (shaded[:, 6] > 0).any() == lit
+
+
+def test_many_models_posed_at_once_are_each_posed_alone():
+    """`JointTable` poses every model of a state in one go: each model's texels are the ones
+    `joint_texels` gives it alone (`joint_transforms`, `placed_joints`), for cars, buses,
+    walkers, every kind of rider and joint, at poses and animations that differ per model."""
+    from drivee2e_data.sim.actors import BLUEPRINTS
+
+    rng = np.random.default_rng(4)
+    models, animations, positions, quaternions = [], [], [], []
+    for agent_class, blueprints in BLUEPRINTS.items():
+        for name, length, width, height in blueprints[:2]:
+            models.append(agent_model(agent_class, name, (length, width, height), name))
+            animations.append(Animation(
+                wheel_angle_rad=float(rng.uniform(-9, 9)), steer_rad=float(rng.uniform(-0.4, 0.4)),
+                walk_phase_rad=float(rng.uniform(0, 7)), walk_amount=float(rng.uniform(0, 1)),
+                brake=bool(rng.integers(2)), headlights=bool(rng.integers(2))))  # fmt: skip
+            positions.append(rng.uniform(-50, 50, 3))
+            yaw = rng.uniform(-np.pi, np.pi)
+            quaternions.append((0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)))
+    kinds = {joint.kind for model in models for joint in model.joint_table}
+    assert kinds == {"root", "wheel", "steer_wheel", "hip", "knee", "ankle", "shoulder",
+                     "elbow", "pedal"}  # fmt: skip
+    together = JointTable(models).texels(np.array(positions), np.array(quaternions), animations)
+    first = 0
+    for model, animation, position, quaternion in zip(
+        models, animations, positions, quaternions, strict=True
+    ):
+        alone = joint_texels(model, animation, position, quaternion)
+        assert np.allclose(together[first : first + len(alone)], alone, atol=1e-5)
+        first += len(alone)
+    assert first == len(together)
 
 
 def test_neighbouring_ranges_are_drawn_as_one():

@@ -372,6 +372,38 @@ def joint_angles(mesh: ModelMesh, animation: Animation) -> tuple[list[float], li
     return pitch, yaw
 
 
+JOINT_KINDS = ("root", "wheel", "steer_wheel", "hip", "knee", "ankle", "shoulder", "elbow", "pedal")
+
+
+def joint_angles_many(
+    kind: NDArray[np.int64],
+    side: NDArray[np.float64],
+    wheel_angle_rad: NDArray[np.float64],
+    steer_rad: NDArray[np.float64],
+    walk_phase_rad: NDArray[np.float64],
+    walk_amount: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """`joint_angles` for many joints of many models at once (the renderer's posing on the
+    GPU): each argument `(G,)` per joint, `kind` an index into `JOINT_KINDS` (another joint
+    kind turns by nothing), the rest its `Joint.side` and its model's `Animation` values;
+    returns pitch and yaw `(G,)` in radians."""
+    is_kind = {name: kind == index for index, name in enumerate(JOINT_KINDS)}
+    hip = side * walk_amount * HIP_SWING_RAD * np.sin(walk_phase_rad)
+    knee = walk_amount * KNEE_BEND_RAD * np.maximum(0.0, -side * np.cos(walk_phase_rad))
+    pitch = np.select(
+        [is_kind["wheel"] | is_kind["steer_wheel"], is_kind["hip"], is_kind["knee"],
+         is_kind["ankle"], is_kind["shoulder"], is_kind["elbow"], is_kind["pedal"]],
+        [wheel_angle_rad, hip, knee, -(hip + knee),
+         -side * walk_amount * ARM_SWING_RAD * np.sin(walk_phase_rad),
+         -ELBOW_BEND_RAD * (0.5 + 0.5 * walk_amount),
+         side * PEDAL_SWING_RAD * np.sin(wheel_angle_rad)],
+        0.0,
+    )  # fmt: skip
+    yaw = np.where(is_kind["steer_wheel"], np.clip(steer_rad, -STEER_LIMIT_RAD, STEER_LIMIT_RAD),
+                   0.0)  # fmt: skip
+    return pitch, yaw
+
+
 def joint_rotations(mesh: ModelMesh, animation: Animation) -> NDArray[np.float64]:
     """`(J, 3, 3)` each joint's rotation about its pivot, in its parent's frame."""
     pitch, yaw = joint_angles(mesh, animation)
