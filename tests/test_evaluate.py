@@ -290,6 +290,11 @@ def test_a_served_network_drives_the_same_episodes_as_one_in_each_worker(
         assert rows["on"][clip]["driven_m"] == pytest.approx(
             rows["off"][clip]["driven_m"], abs=1e-4
         )
+    # the server's account of its batches: a request per step of each episode
+    stats = json.loads((tmp_path / "on" / "policy_server_cpu.json").read_text())
+    assert stats["requests"] == sum(rows["on"][clip]["steps"] for clip in clips)
+    assert 0 < stats["batches"] <= stats["requests"] and stats["forward_s"] > 0
+    assert not (tmp_path / "off" / "policy_server_cpu.json").exists()
 
 
 def test_a_clip_without_an_ego_is_an_error_row_and_the_run_goes_on(

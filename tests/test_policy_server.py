@@ -93,3 +93,42 @@ def test_served_agents_get_through_their_slots_the_plans_of_the_network() -> Non
         remove_slots(folder)
     expected = batch_plans(_Toy(), inputs, 2)  # each alone in a batch of the server's size
     assert all(np.array_equal(plan, want) for plan, want in zip(plans, expected, strict=True))
+
+
+def _niceness_after(workers: int, servers: int, variable: str | None = None) -> int:
+    """A fresh process's niceness after `runner._yield_to_servers(workers, servers)`."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "DRIVEE2E_WORKER_NICENESS"}
+    if variable is not None:
+        env["DRIVEE2E_WORKER_NICENESS"] = variable
+    code = ("import os; from drivee2e_data.evaluate import runner; base = os.nice(0); "
+            f"runner._yield_to_servers({workers}, {servers}); print(os.nice(0) - base)")  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          check=True)  # fmt: skip
+    return int(done.stdout)
+
+
+def test_served_workers_yield_to_their_server_only_where_they_fill_the_cores() -> None:
+    """Workers and servers more than the cores: a worker takes `WORKER_NICENESS` (or the
+    variable's), so that a woken server runs at once; fewer, or the variable at 0: unchanged."""
+    import os
+
+    from drivee2e_data.evaluate.policy_server import WORKER_NICENESS
+
+    cores = len(os.sched_getaffinity(0))
+    assert _niceness_after(cores, 1) == WORKER_NICENESS
+    assert _niceness_after(cores, 1, variable="2") == 2
+    assert _niceness_after(cores, 1, variable="0") == 0
+    assert _niceness_after(max(1, cores - 1), 1) == 0
+
+
+def test_the_server_takes_what_is_queued_without_waiting_unless_told(monkeypatch) -> None:
+    from drivee2e_data.evaluate import policy_server
+
+    monkeypatch.delenv(policy_server.GATHER_MS_VARIABLE, raising=False)
+    assert policy_server.gather_seconds() == 0.0
+    monkeypatch.setenv(policy_server.GATHER_MS_VARIABLE, "2.5")
+    assert policy_server.gather_seconds() == 0.0025

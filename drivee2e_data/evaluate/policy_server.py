@@ -6,9 +6,13 @@ images it drew, the measurement vector); a `ServedAgent` writes them into its ow
 memory (`evaluate/slots.py`: a file in a folder of the run's under /dev/shm, which the server
 maps too) and sends the server of its GPU their layout, a few hundred bytes instead of the
 images' 330 kB pickled through a pipe, then waits for the plan. The server takes the first
-request, then every request already queued and those that arrive within `GATHER_S` (until
-every worker it serves has asked), stacks them, runs the network once, and answers each
-worker. A worker then holds no copy of the network and no CUDA context of its own.
+request, then every request already queued and those that arrive within `gather_seconds()`
+(none by default, `GATHER_MS`), stacks them, runs the network once, and answers each worker.
+A worker then holds no copy of the network and no CUDA context of its own. Where the server
+serves more workers than the host has spare cores, the workers run at a lower priority than
+it (`WORKER_NICENESS`), so that a request never waits for a core. With `stats_path`, a server
+writes what its batches cost when it stops (`ServerStats`): requests, batches, the network's
+time, the gathering's.
 
 An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
 observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
@@ -39,7 +43,18 @@ from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypo
 from drivee2e_data.evaluate.slots import InputSlot, SlotReader
 from drivee2e_data.processes import end_with
 
-GATHER_S = 0.002  # after the first request, how long the server waits for more
+# After the first request, how long the server waits for more (milliseconds; the variable
+# GATHER_MS_VARIABLE overrides it). None: requests queued while the network ran make the next
+# batch, so batches grow only when the server is busy. A batch runs at BATCH_ROWS rows whatever
+# it holds, so a wait buys no cheaper forward, only a later one: with 2 ms, an H200 host's TCP
+# workers waited 12.8 ms a step for a 1.65 ms forward.
+GATHER_MS = 0.0
+GATHER_MS_VARIABLE = "DRIVEE2E_GATHER_MS"
+# the niceness an evaluation worker takes where a policy server shares its cores (0 keeps
+# it; WORKER_NICENESS_VARIABLE overrides): a server woken by a request then runs at once, not
+# after a worker's time slice
+WORKER_NICENESS = 5
+WORKER_NICENESS_VARIABLE = "DRIVEE2E_WORKER_NICENESS"
 MAX_BATCH = 256
 # every batch's rows (`batch_plans`): a server of 16 workers gathers about four requests a
 # batch (TCP on an H200: the forward of 8 rows as a graph 1.65 ms, of 16 rows 2.44)
@@ -47,6 +62,44 @@ BATCH_ROWS = 8
 REPLY_TIMEOUT_S = 600.0  # a server that answers nothing for this long is gone
 # where the server runs its network: the agent's device variable, set in the server process
 AGENT_DEVICE_VARIABLE = "DRIVEE2E_AGENT_DEVICE"
+
+
+def gather_seconds() -> float:
+    """How long a server waits for more requests after a batch's first (`GATHER_MS`)."""
+    return float(os.environ.get(GATHER_MS_VARIABLE, GATHER_MS)) / 1000.0
+
+
+def worker_niceness() -> int:
+    """The niceness served workers take (`WORKER_NICENESS`)."""
+    return int(os.environ.get(WORKER_NICENESS_VARIABLE, WORKER_NICENESS))
+
+
+@dataclass
+class ServerStats:
+    """What a server's batches cost, summed (seconds): from a batch's first request taken to
+    its last (`gather_s`), the network's (`forward_s`: stacking, the batch's forwards and the
+    plans back), and the answers' sending (`reply_s`)."""
+
+    device: str = ""
+    requests: int = 0
+    batches: int = 0
+    forwards: int = 0
+    gather_s: float = 0.0
+    forward_s: float = 0.0
+    reply_s: float = 0.0
+
+    def write(self, path: Path) -> None:
+        """The totals and the means per batch, as JSON (written whole or not at all)."""
+        import json
+
+        from drivee2e_data.store import write_bytes_atomic
+
+        batches = max(1, self.batches)
+        fields = {**self.__dict__, "requests_per_batch": self.requests / batches,
+                  "gather_ms_per_batch": 1000 * self.gather_s / batches,
+                  "forward_ms_per_batch": 1000 * self.forward_s / batches,
+                  "reply_ms_per_batch": 1000 * self.reply_s / batches}  # fmt: skip
+        write_bytes_atomic(path, (json.dumps(fields, indent=1) + "\n").encode())
 
 
 def servable(agent: Any) -> bool:
@@ -76,11 +129,13 @@ def serve(
     agent_factory: Any,
     served: int = 1,
     batch_shape: int = BATCH_ROWS,
+    stats_path: str | None = None,
 ) -> None:
     """The server's loop (its own process): build the agent on `device`, then answer the
     requests of the `served` workers it serves in batches (each run at `batch_shape` rows,
     `batch_plans`) until a None request comes, or until the command that started it is gone
-    (`processes.end_with`: killed outright, it sends none)."""
+    (`processes.end_with`: killed outright, it sends none); at a None request, its
+    `ServerStats` into `stats_path` (JSON) if given."""
     end_with(os.getppid())
     os.environ[AGENT_DEVICE_VARIABLE] = device
     import torch
@@ -94,12 +149,17 @@ def serve(
     slots = SlotReader()
     # a worker asks once at a time: no more requests can come once every worker served has
     most = max(1, min(MAX_BATCH, served))
+    gather_s = gather_seconds()
+    stats = ServerStats(device=device)
     while True:
         first = requests.get()
         if first is None:
+            if stats_path:
+                stats.write(Path(stats_path))
             return
         batch = [first]
-        deadline = time.perf_counter() + GATHER_S
+        taken = time.perf_counter()
+        deadline = taken + gather_s
         while len(batch) < most:
             try:
                 item = requests.get_nowait()
@@ -115,6 +175,7 @@ def serve(
                 requests.put(None)  # answer this batch first, then stop
                 break
             batch.append(item)
+        gathered = time.perf_counter()
         workers = [worker for worker, _ in batch]
         if agent is None:
             for worker in workers:
@@ -126,8 +187,15 @@ def serve(
             answers: list[Any] = list(plans)
         except Exception as error:  # the network's failure ends those episodes, not the run
             answers = [f"the served network raised {type(error).__name__}: {error}"] * len(batch)
+        planned = time.perf_counter()
         for worker, answer in zip(workers, answers, strict=True):
             replies[worker].put(answer)
+        stats.requests += len(batch)
+        stats.batches += 1
+        stats.forwards += -(-len(batch) // max(1, batch_shape))
+        stats.gather_s += gathered - taken
+        stats.forward_s += planned - gathered
+        stats.reply_s += time.perf_counter() - planned
 
 
 def batch_plans(agent: Any, inputs: list[dict[str, np.ndarray]], shape: int) -> np.ndarray:

@@ -321,17 +321,21 @@ def evaluate(
 
 
 def _init_worker(
-    counter: Any = None, servers: tuple[Any, ...] = (), gpus: tuple[int, ...] = ()
+    counter: Any = None,
+    servers: tuple[Any, ...] = (),
+    gpus: tuple[int, ...] = (),
+    workers: int = 1,
 ) -> None:
-    """A pool worker's start: its number (from `counter`), the policy server and the EGL GPU
-    it uses (each round robin over its kind: EGL's and CUDA's orders of the GPUs are their
-    own), one thread each."""
+    """A pool worker's start (one of `workers`): its number (from `counter`), the policy server
+    and the EGL GPU it uses (each round robin over its kind: EGL's and CUDA's orders of the
+    GPUs are their own), one thread each."""
     global _worker_number, _server
     if counter is not None:
         with counter.get_lock():
             _worker_number, counter.value = counter.value, counter.value + 1
     if servers:
         _server = servers[_worker_number % len(servers)]
+        _yield_to_servers(workers, len(servers))
     if gpus:
         from drivee2e_data.sim import egl_devices
 
@@ -348,6 +352,19 @@ def _init_worker(
     # stopped: the twin's meshes go (a child agent process, `--agent-cmd`, ends with its pipe)
     clean_up_when_stopped(_remove_world_files)
     atexit.register(close_process_state)  # the world's EGL context closes quietly
+
+
+def _yield_to_servers(workers: int, servers: int) -> None:
+    """A served worker's niceness (`policy_server.worker_niceness`) where the pool's `workers`
+    and its `servers` are more than the cores: a server's answer then never waits for a core."""
+    from drivee2e_data.evaluate.policy_server import worker_niceness
+
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    if workers + servers > cores and worker_niceness() > 0:
+        os.nice(worker_niceness())
 
 
 def _remove_world_files() -> None:
@@ -368,11 +385,11 @@ def _run_pool(
     pending = sorted(pending, key=lambda s: -_frames(root, s))
     counter = SPAWN.Value("i", 0)
     gpus = _render_gpus(options)
-    servers = _start_servers(options, workers, agent_factory)
+    servers = _start_servers(options, workers, agent_factory, out)
     handles = tuple(handle for handle, _ in servers)
     try:
         _pool_episodes(root, pending, options, out, workers, on_episode, agent_factory,
-                       (counter, handles, gpus))  # fmt: skip
+                       (counter, handles, gpus, workers))  # fmt: skip
     finally:
         _stop_servers(servers)
 
@@ -404,15 +421,16 @@ def _render_gpus(options: EvaluationOptions) -> tuple[int, ...]:
 
 
 def _start_servers(
-    options: EvaluationOptions, workers: int, agent_factory: AgentFactory | None
+    options: EvaluationOptions, workers: int, agent_factory: AgentFactory | None, out: Path
 ) -> list[tuple[Any, Any]]:
     """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
-    GPU) for a servable agent: (handle, process) each; none where the agent runs in its
+    GPU) for a servable agent: (handle, process) each, each writing what its batches cost into
+    `out`/policy_server_<device>.json when it stops; none where the agent runs in its
     workers."""
     if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
         return []
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
-    from drivee2e_data.evaluate.policy_server import ServerHandle, servable, serve
+    from drivee2e_data.evaluate.policy_server import BATCH_ROWS, ServerHandle, servable, serve
     from drivee2e_data.evaluate.slots import slot_folder
 
     probe = _without_network(agent_factory, options.agent, checkpoint)
@@ -435,7 +453,8 @@ def _start_servers(
         process = SPAWN.Process(
             target=serve,
             args=(options.agent, options.checkpoint, device, handle.requests, replies,
-                  agent_factory, served),
+                  agent_factory, served, BATCH_ROWS,
+                  str(out / f"policy_server_{device.replace(':', '')}.json")),
             daemon=True,
         )  # fmt: skip
         process.start()

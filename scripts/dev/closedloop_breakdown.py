@@ -12,12 +12,14 @@ recorded their observe and agent seconds show those as n/a. Where the episodes h
 `started_at`/`ended_at` and the run folder files `command_started` and `command_ended` (Unix
 seconds, written around the command by scripts/dev/device_fourgpu.sh), a second table says
 how the command's time divides: before the first episode started (the process, its workers,
-the policy servers), the episodes' span, and after the last one ended.
+the policy servers), the episodes' span, and after the last one ended. Where the run's policy
+servers wrote what their batches cost (`policy_server_*.json`), a third table shows it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -97,6 +99,24 @@ def main() -> None:
                 f"| {run.name} | {before + span + after:.1f} | {before:.1f} | {span:.1f} "
                 f"| {after:.1f} |"
             )
+    servers = server_rows(args.runs)
+    if servers:
+        print("\n| run | server | requests | batches | requests a batch | gathering ms a batch "
+              "| network ms a batch | answering ms a batch |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|")
+        print("\n".join(servers))
+
+
+def server_rows(runs: list[Path]) -> list[str]:
+    """A table row per policy server of `runs` that wrote its stats."""
+    rows = []
+    for run in runs:
+        for path in sorted(run.glob("policy_server_*.json")):
+            s = json.loads(path.read_text())
+            rows.append(f"| {run.name} | {s['device']} | {s['requests']} | {s['batches']} "
+                        f"| {s['requests_per_batch']:.2f} | {s['gather_ms_per_batch']:.2f} "
+                        f"| {s['forward_ms_per_batch']:.2f} | {s['reply_ms_per_batch']:.2f} |")  # fmt: skip
+    return rows
 
 
 if __name__ == "__main__":

@@ -8,9 +8,11 @@
 # version and, with BASE_TAR (carried: `git archive REV $(git diff --name-only REV -- drivee2e_data
 # loaders collect) -o out/base.tar`, the files that differ), by that one first,
 # and the breakdown of a scene's time per run (scripts/dev/closedloop_breakdown.py) with the
-# GPU's utilisation over each run.
+# GPU's utilisation over each run. VARIANTS names more runs of this version, each with its
+# environment: "NAME:VAR=VALUE,VAR=VALUE" (e.g. the policy server as before,
+# "oldserver:DRIVEE2E_GATHER_MS=2,DRIVEE2E_WORKER_NICENESS=0").
 #   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [BASE_TAR=out/base_overlay.tar]
-#   [HALF_TCP=out/tcp_half.pt] bash scripts/dev/device_closedloop.sh
+#   [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."] bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
 CLIPS="${CLIPS:-40}"
@@ -63,19 +65,22 @@ fi
 runs=()
 for agent in $AGENTS; do
     for workers in $WORKERS; do
-        for version in "${versions[@]}"; do
-            run="$DATA/runs/$agent-w$workers-$version"
+        for version in "${versions[@]}" ${VARIANTS:-}; do
+            name="${version%%:*}"
+            variables=()
+            [[ "$version" == *:* ]] && IFS=, read -r -a variables <<< "${version#*:}"
+            run="$DATA/runs/$agent-w$workers-$name"
             rm -rf "$run"
             nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader,nounits -l 1 \
                 > "/tmp/util-$agent-$workers" 2>/dev/null &
             logger=$!
             path=/tmp/proj
             [ "$version" = base ] && path=/tmp/proj_base
-            stage env PYTHONPATH="$path:/tmp/site" python3 -m drivee2e_data.cli evaluate "$DATA" \
+            stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" python3 -m drivee2e_data.cli evaluate "$DATA" \
                 --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" --workers "$workers" \
                 --out "$run"
             kill "$logger"
-            echo "  $version: GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
+            echo "  $name: GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
                 {printf "%.0f", s/n}' "/tmp/util-$agent-$workers")"
             runs+=("$run")
         done
@@ -85,4 +90,7 @@ python3 "$repo/scripts/dev/closedloop_breakdown.py" "${runs[@]}"
 mkdir -p "$OUT/runs"
 for run in "${runs[@]}"; do
     cp "$run/episodes.parquet" "$OUT/runs/$(basename "$run").parquet"
+    for stats in "$run"/policy_server_*.json; do
+        [ -f "$stats" ] && cp "$stats" "$OUT/runs/$(basename "$run")-$(basename "$stats")"
+    done
 done
