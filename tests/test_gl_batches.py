@@ -135,38 +135,43 @@ def site(tmp_path_factory):
 @pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     """The same frame drawn with the scene cut into cells (most of them skipped by the front
-    camera: what a renderer on the CPU does) and as one batch per material group, all drawn
-    (what it does on a GPU, with one program for every material): the same image, with the
-    crowns detailed at any distance (a GPU draws them so; on the CPU the coarse ones beyond
-    `FOLIAGE_DETAIL_M` are the only change)."""
+    camera) and a program per material group (what a renderer on the CPU does), cut into
+    cells with one program for every material (what a GPU does), and as one batch per
+    material group, all drawn (culling off): the same image, with the crowns detailed at any
+    distance (drawn whole, every crown is; cut, the coarse ones beyond `FOLIAGE_DETAIL_M` are
+    the only change)."""
     intersection_map, scenario = site
     monkeypatch.setattr(gl_batches, "FOLIAGE_DETAIL_M", np.inf)
     ego = scenario.ego
     eye = np.array([ego.x_m[20], ego.y_m[20], 1.6])
     heading = np.array([np.cos(ego.yaw_rad[20]), np.sin(ego.yaw_rad[20]), 0.0])
     images = {}
-    for cull in (True, False):
-        monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda cull=cull: cull)
+    for cull, on_cpu in ((True, True), (True, False), (False, False)):
+        monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda on_cpu=on_cpu: on_cpu)
+        monkeypatch.setenv(gl_renderer.CULL_VARIABLE, "1" if cull else "0")
         with World(intersection_map, scenario, renderer="gl") as world:
             pose_on_cpu(world)  # the models posed alike (`test_gl_posed` compares the two)
-            images[cull] = front_view(world, 20, (320, 180), segmentation=True, near_m=0.5)
+            images[cull, on_cpu] = front_view(world, 20, (320, 180), segmentation=True,
+                                              near_m=0.5)  # fmt: skip
             batches = world.gl.static_batches
             # a program per material group on the CPU, one for all of them on a GPU
             scene = {key for _, key in world.gl.arrays if key not in ("labels", "shadow")}
-            assert (len(scene) > 4) if cull else (len(scene) == 1)
+            assert (len(scene) > 4) if on_cpu else (len(scene) == 1)
             if cull:
                 assert len(batches.group) > 2 * len(batches.groups)  # cut into cells
                 skipped = ~batches.visible(_perspective(eye, eye + 10 * heading, fov_deg=70.0))
                 assert batches.count[skipped].sum() > 0.3 * batches.count.sum()
             else:
                 assert len(batches.group) == len(batches.groups)
-    # the colour to a level: the two ways compile the materials into different programs, and
-    # Mesa 25's llvmpipe rounds one pixel of this image a level apart between them (Mesa 22.3
-    # none); what is drawn where, depth and ids, is the same to the bit
-    difference = np.abs(images[True].rgb.astype(int) - images[False].rgb.astype(int))
-    assert difference.max() <= 1 and (difference.max(axis=2) > 0).mean() < 1e-4
-    assert np.array_equal(images[True].depth_m, images[False].depth_m)
-    assert np.array_equal(images[True].segmentation, images[False].segmentation)
+    reference = images[True, True]
+    for other in (images[True, False], images[False, False]):
+        # the colour to a level: the ways compile the materials into different programs, and
+        # Mesa 25's llvmpipe rounds one pixel of this image a level apart between them (Mesa
+        # 22.3 none); what is drawn where, depth and ids, is the same to the bit
+        difference = np.abs(reference.rgb.astype(int) - other.rgb.astype(int))
+        assert difference.max() <= 1 and (difference.max(axis=2) > 0).mean() < 1e-4
+        assert np.array_equal(reference.depth_m, other.depth_m)
+        assert np.array_equal(reference.segmentation, other.segmentation)
 
 
 def test_walls_and_windows_facing_away_from_the_sun_are_drawn_without_the_shadow_lookup():

@@ -11,9 +11,9 @@ from drivee2e_data.sim import gl_renderer
 from drivee2e_data.sim.gl_posed import (
     JOINTS_PER_ROW,
     JointTable,
+    PosedModels,
     joint_texels,
     model_vertices,
-    runs_of,
 )
 from drivee2e_data.sim.gl_renderer import gl_available
 from drivee2e_data.sim.gl_vertices import PlacedModel
@@ -104,12 +104,37 @@ def test_many_models_posed_at_once_are_each_posed_alone():
     assert first == len(together)
 
 
-def test_neighbouring_ranges_are_drawn_as_one():
-    batches = runs_of([(0, 10), (10, 5), (30, 4), (34, 6), (50, 1)])
-    assert batches.first.tolist() == [0, 30, 50]
-    assert batches.count.tolist() == [15, 10, 1]
-    assert np.all(batches.group == 0) and np.all(np.isinf(batches.low_m))
-    assert len(runs_of([]).first) == 0
+@pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
+def test_a_shown_models_batch_holds_it_and_a_hidden_model_collapses_to_a_point():
+    """After `pose`, a batch per shown model in buffer order, each box holding the model's
+    posed vertices (what a view's frustum test relies on); a model not shown has every joint's
+    transform zero, so a run drawn across it (joined over a gap) puts no triangle anywhere."""
+    sizes = {3: (AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)),
+             5: (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
+             9: (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7))}  # fmt: skip
+    models = {body: agent_model(*size, f"m{body}") for body, size in sizes.items()}
+    animation = Animation(wheel_angle_rad=1.0, steer_rad=0.2, walk_phase_rad=2.0,
+                          walk_amount=1.0)  # fmt: skip
+    quaternion = (0.0, 0.0, float(np.sin(0.4)), float(np.cos(0.4)))
+    places = {3: (10.0, 5.0, 0.7), 9: (-20.0, 3.0, 0.85)}
+    context = gl_renderer._context()
+    with gl_renderer.current(context):
+        posed = PosedModels(context, models)
+        try:
+            posed.pose([(body, places[body], quaternion, animation) for body in (9, 3)])
+            batches = posed.batches
+            assert batches.first.tolist() == [posed.ranges[3][0], posed.ranges[9][0]]
+            for k, body in enumerate((3, 9)):
+                _, count, first_joint = posed.ranges[body]
+                vertices = model_vertices(models[body], body, first_joint)
+                placed = _shaded(vertices, posed.texels[first_joint:], first_joint)[:, 0:3]
+                assert count == len(vertices) == batches.count[k]
+                assert np.all(placed >= batches.low_m[k]) and np.all(placed <= batches.high_m[k])
+            first_joint = posed.ranges[5][2]
+            hidden = posed.texels[first_joint : first_joint + len(models[5].joint_table)]
+            assert not hidden.any()
+        finally:
+            posed.release()
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,9 @@ cells of the ground plane. Each (group, cell) is a `DrawBatches` row with its bo
 view draws only the batches whose box meets its frustum (`DrawBatches.runs`). Skipping a batch
 changes no pixel: everything in it lies outside the view. On llvmpipe, the CPU's GL, every
 vertex of a draw is shaded and clipped on the calling thread whatever the view sees, so a camera
-that sees a fifth of the scene paid for all of it, thirteen views a frame.
+that sees a fifth of the scene paid for all of it, thirteen views a frame; on an H100 or H200,
+whose graphics run on a few of its units, a closed-loop step's vertices were most of its GPU
+time.
 """
 
 from __future__ import annotations
@@ -51,8 +53,8 @@ def _group_of(material: Material) -> int:
 # Crowns are drawn from two meshes (`twin.CROWN_SPHERES`): the detailed one where a batch's box
 # comes within FOLIAGE_DETAIL_M of the eye, the coarse one beyond (a crown there spans under
 # 150 pixels of the front camera), and the coarse one into the sun's shadow map. Where the scene
-# is not cut into cells (a GPU, where small triangles cost next to nothing) every box is
-# unbounded, so every crown is drawn detailed.
+# is not cut into cells (`GLRenderer`'s `cull` off) every box is unbounded, so every crown is
+# drawn detailed.
 FOLIAGE_DETAIL_M = 40.0
 NEAR_FOLIAGE = _group_of(Material.FOLIAGE)
 FAR_FOLIAGE = _group_of(Material.FOLIAGE_FAR)
@@ -159,6 +161,11 @@ class DrawBatches:
         )
 
     @cached_property
+    def _bounded(self) -> NDArray[np.bool_]:
+        """(B,) which batches have a finite box."""
+        return np.isfinite(self.low_m).all(axis=1) & np.isfinite(self.high_m).all(axis=1)
+
+    @cached_property
     def _corners(self) -> NDArray[np.float64]:
         """(B, 8, 3) the corners of each batch's box."""
         return np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
@@ -169,14 +176,17 @@ class DrawBatches:
         of the frustum's six planes."""
         if not len(self.group):
             return np.zeros(0, bool)
-        corners = self._corners
+        bounded = self._bounded
+        corners = self._corners[bounded]  # an unbounded box may show anywhere
         clip = corners @ matrix[:3, :3].T + matrix[:3, 3]  # (B, 8, 3)
         w = corners @ matrix[3, :3] + matrix[3, 3]  # (B, 8)
-        outside = np.zeros(len(self.group), bool)
+        outside = np.zeros(len(corners), bool)
         for axis in range(3):
             outside |= np.all(clip[..., axis] > w, axis=1)
             outside |= np.all(clip[..., axis] < -w, axis=1)
-        return ~outside
+        visible = np.ones(len(self.group), bool)
+        visible[bounded] = ~outside
+        return visible
 
     def runs(
         self,

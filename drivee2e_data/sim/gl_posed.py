@@ -159,9 +159,9 @@ class JointTable:
 
 class PosedModels:
     """Every actor body's model in one vertex buffer of `context`, posed by `pose` (see the
-    module's docstring). `batches`: the shown models' vertex ranges, one batch per run of
-    neighbours, every batch in material group 0 (a GPU draws all groups with one program) and
-    unbounded (a model may show in any view)."""
+    module's docstring). `batches`: the shown models' vertex ranges, a batch each, in material
+    group 0 (a GPU draws all groups with one program) and bounded by a cube the model cannot
+    leave (`reach_m`), for the views' frustum tests; neighbours are drawn as one run."""
 
     def __init__(self, context, models: Mapping[int, ModelMesh]) -> None:
         self.context = context
@@ -194,6 +194,13 @@ class PosedModels:
         self.positions = np.zeros((len(self.bodies), 3))
         self.quaternions = np.tile([0.0, 0.0, 0.0, 1.0], (len(self.bodies), 1))
         self.animations = [Animation()] * len(self.bodies)
+        # how far a model's vertices reach from its origin, however its joints turn (a joint
+        # turns its part about a pivot inside the model's box: the box's half diagonal from
+        # the pivot, at most the model's reach twice); each shown model's batch is a cube of
+        # this half side about its body's position, tested against each view's frustum
+        self.reach_m = np.array(
+            [2.0 * float(np.linalg.norm(np.abs(self.models[b].positions).max(axis=0)))
+             for b in self.bodies], np.float64)  # fmt: skip
 
     def pose(
         self, placements: Sequence[tuple[int, Sequence[float], Sequence[float], Animation]]
@@ -201,40 +208,31 @@ class PosedModels:
         """The models shown now, each `(body, position, quaternion, animation)`: their joints'
         texels written and uploaded, `batches` made of their vertex ranges; every other model
         is not drawn."""
-        shown = []
+        shown = np.zeros(len(self.bodies), bool)
         for body, position, orientation, animation in placements:
             slot = self.slot[body]
             self.positions[slot] = position
             self.quaternions[slot] = orientation
             self.animations[slot] = animation
-            shown.append(self.ranges[body][:2])
+            shown[slot] = True
         if self.bodies:
             texels = self.joints.texels(self.positions, self.quaternions, self.animations)
+            # a model not shown has every vertex at the origin: its triangles have no area, so
+            # a draw that spans it (a run joined across a gap, `DrawBatches.runs`) draws nothing
+            texels[~shown[self.joints.owner]] = 0.0
             self.texels[: len(texels)] = texels
         self.texture.write(self.texels.tobytes())
-        self.batches = runs_of(sorted(shown))
+        slots = np.flatnonzero(shown)  # in buffer order: the bodies are sorted
+        ranges = np.array([self.ranges[self.bodies[k]][:2] for k in slots], np.int64)
+        reach = self.reach_m[slots, None]
+        self.batches = DrawBatches(
+            group=np.zeros(len(slots), np.int64),
+            first=ranges[:, 0] if len(slots) else np.zeros(0, np.int64),
+            count=ranges[:, 1] if len(slots) else np.zeros(0, np.int64),
+            low_m=self.positions[slots] - reach,
+            high_m=self.positions[slots] + reach,
+        )
 
     def release(self) -> None:
         self.buffer.release()
         self.texture.release()
-
-
-def runs_of(ranges: Sequence[tuple[int, int]]) -> DrawBatches:
-    """`ranges` `(first vertex, count)` in buffer order as batches of material group 0, those that
-    touch joined, each unbounded."""
-    firsts: list[int] = []
-    counts: list[int] = []
-    for first, count in ranges:
-        if firsts and firsts[-1] + counts[-1] == first:
-            counts[-1] += count
-        else:
-            firsts.append(first)
-            counts.append(count)
-    runs = len(firsts)
-    return DrawBatches(
-        group=np.zeros(runs, np.int64),
-        first=np.asarray(firsts, np.int64),
-        count=np.asarray(counts, np.int64),
-        low_m=np.full((runs, 3), -np.inf),
-        high_m=np.full((runs, 3), np.inf),
-    )

@@ -21,6 +21,7 @@ import ctypes
 import ctypes.util
 import functools
 import logging
+import os
 import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -92,6 +93,8 @@ SHADOW_HALF_WIDTH_M = 75.0
 SHADOW_FOCUS_STEP_M = 8.0
 SHADOW_DEPTH_M = 600.0
 MAX_SPOTS = 6  # the nearest vehicles' headlights light the scene (`SceneLights`)
+# "1" or "0": cut the scene into cells tested per view (`cull`) or not, whatever draws it
+CULL_VARIABLE = "DRIVEE2E_GL_CULL"
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
 
 
@@ -425,9 +428,9 @@ class GLRenderer:
     shine them whatever the light. The shaders (`sim/shaders`) draw materials, the sky, the
     sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`. With
     `cull` (None: where GL draws on the CPU, `rasterises_on_cpu`) each view draws only the
-    cells of the scene its frustum meets (`gl_batches`). With `pose_on_gpu` (None: where the
-    scene is not cut into cells, a GPU) the actors' models are posed by the vertex shader
-    (`gl_posed`), else on the CPU (`gl_vertices.PlacedModel`)."""
+    cells of the scene its frustum meets (`gl_batches`; `CULL_VARIABLE` may say otherwise).
+    With `pose_on_gpu` (None: where a GPU draws) the actors' models are posed by the vertex
+    shader (`gl_posed`), else on the CPU (`gl_vertices.PlacedModel`)."""
 
     def __init__(
         self,
@@ -454,12 +457,22 @@ class GLRenderer:
             self.labels_program = _program("scene.vert", "labels.frag")
             self.sky_program = _program("sky.vert", "sky.frag")
             self.shadow_program = _program("shadow.vert", "shadow.frag")
-            # cut into cells that each view tests against its frustum (None: where GL draws
-            # on the CPU); drawn whole otherwise
-            self.cull = rasterises_on_cpu() if cull is None else cull
+            # cut into cells that each view tests against its frustum (None: everywhere, unless
+            # CULL_VARIABLE says otherwise); drawn whole otherwise. On llvmpipe every vertex of a
+            # draw is shaded on the calling thread; on an H100 or H200 only a few of the GPU's
+            # units run graphics, and a closed-loop step's vertices were most of its GPU time:
+            # cut, sixteen processes drawing TCP's cameras took 25.5 ms a step against 38.3
+            # (`scripts/dev/bench_observers.py`)
+            if cull is None:
+                cull = os.environ.get(CULL_VARIABLE, "1") != "0"
+            self.cull = cull
+            # where a GPU draws, one scene program for every material (a branch on a
+            # triangle's material costs it next to nothing, and a world compiles two programs
+            # instead of a dozen); where the CPU does, one per material group
+            self.one_program = not rasterises_on_cpu()
             # llvmpipe shades every vertex of a draw on the calling thread, once per view (13
             # a collection frame): there the CPU poses the models once per state instead
-            self.poses_on_gpu = not self.cull if pose_on_gpu is None else pose_on_gpu
+            self.poses_on_gpu = not rasterises_on_cpu() if pose_on_gpu is None else pose_on_gpu
             self.static_vertices = static_vertices(static_meshes)
             self.static_anchors = static_anchors(static_meshes)
             self.static_buffer = None
@@ -518,6 +531,7 @@ class GLRenderer:
         # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
         # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
         self.reduces = not rasterises_on_cpu()
+        self.depth_prepass = os.environ.get("DRIVEE2E_DEPTH_PREPASS", "0") == "1"
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -531,7 +545,7 @@ class GLRenderer:
         world compiles two scene programs instead of a dozen (each new world's first frame
         waited on them). The shadow-only casters, where drawn (`draw`'s `casters_drawn`), take
         every material's too."""
-        every = not self.cull or group == SHADOW_ONLY
+        every = self.one_program or group == SHADOW_ONLY
         return group_defines(len(MATERIAL_GROUPS) if every else group, variant)
 
     def _array(self, buffer_name: str, program_key: object):
@@ -594,11 +608,12 @@ class GLRenderer:
         self._sort_static(look.light_direction)
 
     def _sort_static(self, light_direction: tuple[float, float, float]) -> None:
-        """The twin's triangles into the static buffer in draw order; where the scene is cut into
-        cells (llvmpipe), the walls and windows that face away from the sun of `light_direction`
-        in groups of their own (`gl_batches.AVERTED`: they save its shadow lookups; on a GPU
-        they would only add draws), sorted again when the sun moves (a world's next clip)."""
-        light = tuple(float(v) for v in light_direction) if self.cull else None
+        """The twin's triangles into the static buffer in draw order (in cells where culling);
+        where a program is compiled per material group (llvmpipe), the walls and windows that
+        face away from the sun of `light_direction` in groups of their own
+        (`gl_batches.AVERTED`: they save its shadow lookups; on a GPU they would only add
+        draws), sorted again when the sun moves (a world's next clip)."""
+        light = None if self.one_program else tuple(float(v) for v in light_direction)
         if light == self.static_light and self.static_buffer is not None:
             return
         vertices, self.static_batches = in_draw_order(
@@ -747,7 +762,7 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        if self.cull:
+        if self.cull and not self.one_program:
             vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts))
         else:
             vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
@@ -872,7 +887,7 @@ class GLRenderer:
             labels = program_key == "labels"
             hidden = frozenset() if casters_drawn and not labels else frozenset({SHADOW_ONLY})
             skip = hidden | (DECALS if labels else frozenset())
-            by_group = not labels and self.cull  # one program for all groups on a GPU
+            by_group = not labels and not self.one_program  # one for all groups on a GPU
             draws = batches.runs(visible, by_group=by_group, skip=skip, excluded=~detail)
             for group, first, vertices in draws:
                 key = "labels" if labels else self._scene_defines(group, program_key)
@@ -1058,6 +1073,15 @@ class GLRenderer:
             self.shadow_texture.use(location=0)
             self.wear_texture.use(location=1)
             self.lamp_texture.use(location=2)
+            if self.depth_prepass:
+                # the nearest surface's depth first, with the labels program's cheap fragments
+                # and no colour written; the scene's own fragments then run once a pixel
+                for program in (self.labels_program, *self._posed_in_use(["labels"])):
+                    program["mvp"].write(matrix.T.astype(np.float32).tobytes())
+                framebuffer.color_mask = ((False,) * 4,) * len(outputs)
+                self._draw_geometry("labels", matrix, camera_position, casters_drawn)
+                framebuffer.color_mask = ((True,) * 4,) * len(outputs)
+                self.context.depth_func = "<="
             self._draw_geometry(variant, matrix, camera_position, casters_drawn)
             # the sky last, on the far plane, where nothing was drawn: the depth test spares
             # shading the sky behind the scene

@@ -1,0 +1,90 @@
+"""How the closed-loop observer scales with the processes that share a host's GPU: N processes,
+each drawing the logged drive of its own clip through `SensorObserver` (the agent's three front
+cameras at its input size, the cheap path; no agent, no episode), all started together; per
+process count, the mean ms a step, the host's steps a second, and both against one process
+alone (the reference, in the same run).
+
+    python scripts/dev/bench_observers.py DATA [--processes 1 4 8 16] [--steps 60]
+        [--input 256x144] [--supersample 2]
+
+DATA holds scenario bundles (`drivee2e synth`). Where the steps a second stop growing with the
+processes, the GPU (or the cores) is the limit: a host's closed loop cannot go faster than
+that whatever the agent (docs/benchmarks.md, closed loop).
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import time
+from pathlib import Path
+
+from drivee2e_data import store
+
+FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
+
+
+def _drive(data: str, clip: str, steps: int, input_size, supersample: float, barrier, out) -> None:
+    """One process: the world of `clip`, a step to warm up, then `steps` steps timed after every
+    process is ready; its seconds and the drawn size into `out`."""
+    from drivee2e_data.evaluate.observation import LoggedDrive, SensorObserver
+    from drivee2e_data.sim.world import World
+
+    scenario = store.read_scenario(Path(data), clip)
+    drive = LoggedDrive(scenario)
+    frames = len(drive.motion.x_m)
+    with World(store.read_map(Path(data), scenario.map_id), scenario, "auto") as world:
+        observer = SensorObserver(world, FRONT, (1600, 900), input_size, supersample)
+        drive.observe(observer, 0)
+        barrier.wait()
+        start = time.perf_counter()
+        for step in range(1, steps + 1):
+            drive.observe(observer, 1 + step % (frames - 1))
+        out.put((time.perf_counter() - start, observer.drawn_rig.cameras[0].width,
+                 observer.drawn_rig.cameras[0].height))  # fmt: skip
+
+
+def run(data: Path, clips: list[str], processes: int, steps: int, input_size, supersample):
+    """(mean seconds a step per process, steps a second of them all, drawn size)."""
+    context = multiprocessing.get_context("spawn")
+    barrier, out = context.Barrier(processes), context.Queue()
+    workers = [
+        context.Process(target=_drive, args=(str(data), clips[k % len(clips)], steps,
+                                             input_size, supersample, barrier, out))
+        for k in range(processes)
+    ]  # fmt: skip
+    for worker in workers:
+        worker.start()
+    results = [out.get() for _ in workers]
+    for worker in workers:
+        worker.join()
+    seconds = [r[0] for r in results]
+    per_step = sum(seconds) / len(seconds) / steps
+    return per_step, processes * steps / max(seconds), results[0][1:]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("data", type=Path)
+    parser.add_argument("--processes", type=int, nargs="+", default=[1, 4, 8, 16])
+    parser.add_argument("--steps", type=int, default=60)
+    parser.add_argument("--input", default="256x144", help="the agent's input size, WxH")
+    parser.add_argument("--supersample", type=float, default=2.0)
+    args = parser.parse_args()
+    input_size = tuple(int(v) for v in args.input.split("x"))
+    clips = store.scenario_ids(args.data)
+    reference = None
+    print(f"input {args.input}, supersample {args.supersample}, {args.steps} steps a process")
+    print("| processes | drawn | ms a step | steps a second | against one process (step, host) |")
+    print("|---|---|---|---|---|")
+    for processes in args.processes:
+        per_step, rate, drawn = run(args.data, clips, processes, args.steps, input_size,
+                                    args.supersample)  # fmt: skip
+        if reference is None:
+            reference = (per_step, rate)
+        print(f"| {processes} | {drawn[0]}x{drawn[1]} | {1000 * per_step:.1f} | {rate:.0f} "
+              f"| {per_step / reference[0]:.2f}x, {rate / reference[1]:.2f}x |", flush=True)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
