@@ -531,7 +531,6 @@ class GLRenderer:
         # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
         # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
         self.reduces = not rasterises_on_cpu()
-        self.depth_prepass = os.environ.get("DRIVEE2E_DEPTH_PREPASS", "0") == "1"
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -1073,15 +1072,6 @@ class GLRenderer:
             self.shadow_texture.use(location=0)
             self.wear_texture.use(location=1)
             self.lamp_texture.use(location=2)
-            if self.depth_prepass:
-                # the nearest surface's depth first, with the labels program's cheap fragments
-                # and no colour written; the scene's own fragments then run once a pixel
-                for program in (self.labels_program, *self._posed_in_use(["labels"])):
-                    program["mvp"].write(matrix.T.astype(np.float32).tobytes())
-                framebuffer.color_mask = ((False,) * 4,) * len(outputs)
-                self._draw_geometry("labels", matrix, camera_position, casters_drawn)
-                framebuffer.color_mask = ((True,) * 4,) * len(outputs)
-                self.context.depth_func = "<="
             self._draw_geometry(variant, matrix, camera_position, casters_drawn)
             # the sky last, on the far plane, where nothing was drawn: the depth test spares
             # shading the sky behind the scene

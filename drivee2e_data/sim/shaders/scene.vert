@@ -6,9 +6,6 @@
 // and tail-light emission).
 uniform mat4 mvp;
 uniform mat4 shadow_matrix;
-// the same clip-space position in every program built on this stage (scene and labels): a
-// depth pre-pass drawn with the labels program is matched by the scene's fragments exactly
-invariant gl_Position;
 in vec3 in_position;
 in vec3 in_normal;
 in vec3 in_colour;
