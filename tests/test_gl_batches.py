@@ -209,32 +209,44 @@ def test_walls_and_windows_facing_away_from_the_sun_are_drawn_without_the_shadow
     assert averted_facades not in unsorted.group and averted_windows not in unsorted.group
 
 
-def test_a_kept_group_order_gives_what_sorting_afresh_gives_frame_after_frame():
-    """A GPU's moving bodies are grouped by material without cells (`GroupOrder`): the order is
-    kept while the triangles' materials are the same, recomputed when they change, and every
-    frame's vertices and batches are those of `in_draw_order` sorting them afresh."""
+@pytest.mark.parametrize("cells", [False, True])
+def test_a_kept_group_order_gives_what_sorting_afresh_gives_frame_after_frame(cells):
+    """The moving bodies' order kept from frame to frame (`GroupOrder`), without cells (by
+    material) and with them (by material and place): kept while the triangles' materials (and,
+    with cells, their places) are the same, recomputed when they change, and every frame's
+    vertices and batches are those of `in_draw_order` sorting them afresh."""
     rng = np.random.default_rng(5)
-    order = gl_batches.GroupOrder()
+    order = gl_batches.GroupOrder(cells)
     materials = [Material.PAINT, Material.GLASS, Material.MATTE, Material.TYRE, Material.LAMP]
-    codes = rng.choice(materials, size=300)
+    codes = rng.choice(materials, size=2000)  # paint, glass and tyre: over 3000 vertices
+    centres = rng.uniform(-50.0, 50.0, size=(len(codes), 2))
     frames = []
-    for frame in range(4):
+    for frame in range(5):
+        if frame == 1 and not cells:  # everything moved: by material alone, the same order
+            centres = rng.uniform(-50.0, 50.0, size=(len(codes), 2))
         if frame == 2:  # a body appears: other materials in other places
             codes = np.concatenate([codes, rng.choice(materials, size=40)])
-        centres = rng.uniform(-50.0, 50.0, size=(len(codes), 2))  # everything moved
+            centres = np.concatenate([centres, rng.uniform(-50.0, 50.0, size=(40, 2))])
+        if frame == 4 and cells:  # one triangle moved: in cells, a new order
+            centres = centres.copy()
+            centres[7] += 30.0
         frames.append(np.concatenate([_triangle_rows(centres[k : k + 1], code)
                                       for k, code in enumerate(codes)]))  # fmt: skip
     kept = []
     for rows in frames:
         ordered, batches = order(rows)
-        expected, expected_batches = in_draw_order(rows, cells=False)
+        expected, expected_batches = in_draw_order(rows, cells=cells)
         np.testing.assert_array_equal(ordered, expected)
         for field in ("group", "first", "count", "low_m", "high_m"):
             np.testing.assert_array_equal(getattr(batches, field),
                                           getattr(expected_batches, field))  # fmt: skip
         kept.append(order.order)
     assert kept[1] is kept[0] and kept[2] is not kept[1] and kept[3] is kept[2]
-    assert len(batches.group) == 2  # paint, glass and tyre; matte and lamps: two groups
+    assert (kept[4] is not kept[3]) if cells else (kept[4] is kept[3])
+    if not cells:
+        assert len(batches.group) == 2  # paint, glass and tyre; matte and lamps: two groups
+    else:
+        assert len(batches.group) > 2  # a group of 3000 vertices or more is cut into cells
 
 
 @pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")

@@ -255,14 +255,16 @@ def in_draw_order(
 
 
 class GroupOrder:
-    """`in_draw_order` without cells (a GPU's moving bodies, drawn whole), remembered: there the
-    order and the batches depend on nothing but each triangle's material, so while a frame's
-    triangles carry the same materials in the same places as the last frame's (the same bodies
-    with the same models), the last order is taken again and only the triangles are moved: the
-    same vertices and batches, without sorting them again."""
+    """`in_draw_order` (without a light), remembered: its order and batches depend on nothing but
+    each triangle's material and, with `cells`, its corners' positions, so while a frame's
+    triangles carry the same materials (and lie in the same places) as the last frame's, the
+    last order is taken again and only the triangles are moved: the same vertices and batches,
+    without sorting them again. What the moving bodies' buffer holds where the GPU poses the
+    models (`gl_posed`) is mostly the signals' lamps, which stand still and change colour."""
 
-    def __init__(self) -> None:
-        self.materials: NDArray[np.float32] | None = None
+    def __init__(self, cells: bool = False) -> None:
+        self.cells = cells
+        self.key: NDArray[np.float32] | None = None
         self.order = np.zeros(0, np.int64)
         self.batches = DrawBatches.empty()
 
@@ -270,10 +272,11 @@ class GroupOrder:
         if not len(vertices):
             return vertices, DrawBatches.empty()
         triangles = vertices.reshape(-1, 3, FLOATS_PER_VERTEX)
-        materials = triangles[:, 0, FLOATS_PER_VERTEX - 1]
-        if self.materials is None or not np.array_equal(materials, self.materials):
-            self.order, self.batches = draw_order(vertices, cells=False)
-            self.materials = materials.copy()
+        # the materials, and the positions where cells are cut
+        key = vertices[:, [0, 1, 2, FLOATS_PER_VERTEX - 1]] if self.cells else triangles[:, 0, -1]
+        if self.key is None or not np.array_equal(key, self.key):
+            self.order, self.batches = draw_order(vertices, cells=self.cells)
+            self.key = key.copy()
         ordered = np.take(triangles, self.order, axis=0)
         return ordered.reshape(-1, FLOATS_PER_VERTEX), self.batches
 

@@ -507,7 +507,7 @@ class GLRenderer:
         self.lit: object = None  # the state whose headlights the light texture holds
         self.wear = wear
         self.dynamic_batches = DrawBatches.empty()
-        self.dynamic_order = GroupOrder()  # the moving bodies' order, kept while it holds
+        self.dynamic_order = GroupOrder(self.cull)  # the moving bodies' order, kept while it holds
         self.bodies: dict[int, _Body] = {}
         self.models: dict[int, ModelMesh] = {}
         self.placers: dict[int, PlacedModel] = {}  # each model body's posing, made once
@@ -761,10 +761,10 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        if self.cull and not self.one_program:
-            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts))
-        else:
+        if self.one_program:
             vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
+        else:
+            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
         lights = lights or SceneLights()
         casters = [self._placed(body, position, orientation, animation)
                    for body, position, orientation, animation in lights.casters
