@@ -97,6 +97,15 @@ def assert_sun_matches_label(conditions: Conditions, origin: GeoOrigin) -> None:
         assert elevation < -4.0, where
 
 
+# a model of each kind of joint: steering and turning wheels (car, bus), walking legs and arms
+# (pedestrian), pedals and a rider (bicycle): what the posing tests pose
+JOINTED_MODELS = [
+    (AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)), (AgentClass.BUS, "bus", (11.0, 2.5, 3.2)),
+    (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
+    (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7)),
+]  # fmt: skip
+
+
 def synthetic_clip(root: Path) -> tuple[IntersectionMap, Scenario]:
     """The map and the one clip of a seed-3 synthetic set written under `root`."""
     from drivee2e_data import pipeline, store

@@ -19,7 +19,7 @@ from drivee2e_data.sim.gl_renderer import gl_available
 from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, agent_model
 from drivee2e_data.sim.world import World
-from tests.factories import front_view, pose_on_cpu, synthetic_clip
+from tests.factories import JOINTED_MODELS, front_view, pose_on_cpu, synthetic_clip
 
 
 def _shaded(vertices: np.ndarray, texels: np.ndarray, first_joint: int) -> np.ndarray:
@@ -37,10 +37,8 @@ def _shaded(vertices: np.ndarray, texels: np.ndarray, first_joint: int) -> np.nd
 
 @pytest.mark.parametrize(
     ("agent_class", "name", "size"),
-    [(AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)), (AgentClass.BUS, "bus", (11.0, 2.5, 3.2)),
-     (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
-     (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7))],
-)  # fmt: skip
+    JOINTED_MODELS,
+)
 @pytest.mark.parametrize("lights", [(False, False), (True, False), (True, True)])
 def test_a_vertex_read_through_its_joints_texels_lands_where_the_cpu_places_it(
     agent_class, name, size, lights

@@ -16,7 +16,7 @@ from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, Light, agent_model, palette, pose, vehicles
 from drivee2e_data.sim.models.mesh import HIP_SWING_RAD, face_normals
 from drivee2e_data.sim.twin_plan import TwinMesh, box_mesh
-from tests.factories import straight_track
+from tests.factories import JOINTED_MODELS, straight_track
 
 MOTOR = (AgentClass.CAR, AgentClass.VAN, AgentClass.TRUCK, AgentClass.BUS)
 RIDDEN = (AgentClass.CYCLIST, AgentClass.MOTORCYCLIST, AgentClass.TRICYCLIST)
@@ -122,10 +122,8 @@ def test_wheels_turn_by_distance_over_circumference():
 
 @pytest.mark.parametrize(
     ("agent_class", "name", "size"),
-    [(AgentClass.CAR, "sedan", (4.6, 1.85, 1.45)), (AgentClass.BUS, "bus", (11.0, 2.5, 3.2)),
-     (AgentClass.PEDESTRIAN, "pedestrian", (0.6, 0.6, 1.72)),
-     (AgentClass.CYCLIST, "bicycle", (1.8, 0.6, 1.7))],
-)  # fmt: skip
+    JOINTED_MODELS,
+)
 def test_a_placed_model_is_its_posed_mesh_moved_to_the_body(agent_class, name, size):
     """The renderer's one-pass placing (`PlacedModel`) gives the triangles of `pose` rotated
     by the body's quaternion and moved to its position: the same triangles (in joint order),
