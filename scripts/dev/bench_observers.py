@@ -5,11 +5,13 @@ process count, the mean ms a step, the host's steps a second, and both against o
 alone (the reference, in the same run).
 
     python scripts/dev/bench_observers.py DATA [--processes 1 4 8 16] [--steps 60]
-        [--input 256x144] [--supersample 2]
+        [--input 256x144] [--supersample 2] [--cameras 3] [--no-shadows]
 
 DATA holds scenario bundles (`drivee2e synth`). Where the steps a second stop growing with the
 processes, the GPU (or the cores) is the limit: a host's closed loop cannot go faster than
-that whatever the agent (docs/benchmarks.md, closed loop).
+that whatever the agent (docs/benchmarks.md, closed loop). `--cameras 1` draws the front camera
+alone, `--no-shadows` every clip without the sun's shadow map (what a view and the shadow pass
+cost, to find where a step's GPU time goes; no agent sees such steps).
 """
 
 from __future__ import annotations
@@ -24,7 +26,10 @@ from drivee2e_data import store
 FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
 
 
-def _drive(data: str, clip: str, steps: int, input_size, supersample: float, barrier, out) -> None:
+def _drive(
+    data: str, clip: str, steps: int, input_size, supersample: float, cameras, shadows: bool,
+    barrier, out,
+) -> None:  # fmt: skip
     """One process: the world of `clip`, a step to warm up, then `steps` steps timed after every
     process is ready; its seconds and the drawn size into `out`."""
     from drivee2e_data.evaluate.observation import LoggedDrive, SensorObserver
@@ -34,7 +39,12 @@ def _drive(data: str, clip: str, steps: int, input_size, supersample: float, bar
     drive = LoggedDrive(scenario)
     frames = len(drive.motion.x_m)
     with World(store.read_map(Path(data), scenario.map_id), scenario, "auto") as world:
-        observer = SensorObserver(world, FRONT, (1600, 900), input_size, supersample)
+        if not shadows and world.gl is not None:
+            import dataclasses
+
+            world.look = dataclasses.replace(world.look, shadows=False)
+            world.gl.set_look(world.look)
+        observer = SensorObserver(world, cameras, (1600, 900), input_size, supersample)
         drive.observe(observer, 0)
         barrier.wait()
         start = time.perf_counter()
@@ -44,13 +54,15 @@ def _drive(data: str, clip: str, steps: int, input_size, supersample: float, bar
                  observer.drawn_rig.cameras[0].height))  # fmt: skip
 
 
-def run(data: Path, clips: list[str], processes: int, steps: int, input_size, supersample):
+def run(data: Path, clips: list[str], processes: int, steps: int, input_size, supersample,
+        cameras=FRONT, shadows: bool = True):  # fmt: skip
     """(mean seconds a step per process, steps a second of them all, drawn size)."""
     context = multiprocessing.get_context("spawn")
     barrier, out = context.Barrier(processes), context.Queue()
     workers = [
         context.Process(target=_drive, args=(str(data), clips[k % len(clips)], steps,
-                                             input_size, supersample, barrier, out))
+                                             input_size, supersample, cameras, shadows,
+                                             barrier, out))
         for k in range(processes)
     ]  # fmt: skip
     for worker in workers:
@@ -70,16 +82,20 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--input", default="256x144", help="the agent's input size, WxH")
     parser.add_argument("--supersample", type=float, default=2.0)
+    parser.add_argument("--cameras", type=int, choices=(1, 3), default=3)
+    parser.add_argument("--no-shadows", action="store_true")
     args = parser.parse_args()
     input_size = tuple(int(v) for v in args.input.split("x"))
     clips = store.scenario_ids(args.data)
     reference = None
-    print(f"input {args.input}, supersample {args.supersample}, {args.steps} steps a process")
+    cameras = FRONT if args.cameras == 3 else ("CAM_FRONT",)
+    print(f"input {args.input}, supersample {args.supersample}, {args.steps} steps a process, "
+          f"{len(cameras)} cameras, shadows {'off' if args.no_shadows else 'as the clip'}")  # fmt: skip
     print("| processes | drawn | ms a step | steps a second | against one process (step, host) |")
     print("|---|---|---|---|---|")
     for processes in args.processes:
         per_step, rate, drawn = run(args.data, clips, processes, args.steps, input_size,
-                                    args.supersample)  # fmt: skip
+                                    args.supersample, cameras, not args.no_shadows)  # fmt: skip
         if reference is None:
             reference = (per_step, rate)
         print(f"| {processes} | {drawn[0]}x{drawn[1]} | {1000 * per_step:.1f} | {rate:.0f} "
