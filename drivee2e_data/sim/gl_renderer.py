@@ -264,9 +264,9 @@ def gl_renderer_name() -> str:
     return "" if context is None else str(context.info["GL_RENDERER"])
 
 
-# GL drivers that rasterise on the CPU: every vertex of a draw costs the calling thread there,
-# so views draw only the batches their frustum meets (`gl_batches`); on a GPU the vertices cost
-# next to nothing and the frustum tests and extra draws would cost more than they save
+# GL drivers that rasterise on the CPU: every vertex of a draw is shaded on the calling thread
+# there (once per view), so the models are posed once per state on the CPU, and each material
+# group gets a program of its own (llvmpipe runs every branch of a shader for every pixel)
 SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast")
 
 
@@ -427,8 +427,8 @@ class GLRenderer:
     its pybullet visual shapes. `lamps` (signal lamps) have their colours read again too, and
     shine them whatever the light. The shaders (`sim/shaders`) draw materials, the sky, the
     sun's shadows, fog, wet surfaces and light at night from the clip's `ShaderLook`. With
-    `cull` (None: where GL draws on the CPU, `rasterises_on_cpu`) each view draws only the
-    cells of the scene its frustum meets (`gl_batches`; `CULL_VARIABLE` may say otherwise).
+    `cull` (None: everywhere, unless `CULL_VARIABLE` says otherwise) each view draws only the
+    cells of the scene its frustum meets (`gl_batches`).
     With `pose_on_gpu` (None: where a GPU draws) the actors' models are posed by the vertex
     shader (`gl_posed`), else on the CPU (`gl_vertices.PlacedModel`)."""
 
