@@ -548,8 +548,9 @@ class GLRenderer:
         return group_defines(len(MATERIAL_GROUPS) if every else group, variant)
 
     def _array(self, buffer_name: str, program_key: object):
-        """The vertex array feeding a program from the static or dynamic buffer (made once per
-        pair, again after the dynamic buffer grows)."""
+        """The vertex array feeding a program from the static, dynamic or posed buffer (made
+        once per pair, again after the dynamic buffer grows or the posed models are made
+        anew)."""
         array = self.arrays.get((buffer_name, program_key))
         if array is None and buffer_name == "posed":
             assert self.posed is not None
