@@ -142,10 +142,11 @@ def site(tmp_path_factory):
 
 @pytest.mark.skipif(not gl_available(), reason="no OpenGL context (EGL) here")
 def test_frames_posed_on_the_gpu_are_the_frames_posed_on_the_cpu(site, monkeypatch):
-    """A GPU host's renderer (no cells) poses the actors in its vertex shader; frames of the
+    """A GPU host's renderer poses the actors in its vertex shader; frames of the
     same clip drawn that way and with the models posed on the CPU show the same bodies at the
     same pixels, depths to a centimetre, and colours the same but on a few edge pixels (the
-    shader's and numpy's float32 products round apart), before and after a replay."""
+    shader's and numpy's float32 products round apart), before and after a replay; so does a
+    depth-and-ids view (the labels program posed too)."""
     intersection_map, scenario = site
     monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda: False)
     frames = (5, 40, 80)
@@ -157,6 +158,9 @@ def test_frames_posed_on_the_gpu_are_the_frames_posed_on_the_cpu(site, monkeypat
             actor_bodies = set(world.bodies.values())
             images[on_gpu] = [front_view(world, f, (320, 180), segmentation=True, near_m=0.5)
                               for f in frames]  # fmt: skip
+            # the depth-and-ids view the LiDAR and the boxes' visibility read
+            images[on_gpu].append(front_view(world, frames[1], (320, 180), segmentation=True,
+                                             near_m=0.5, look="labels"))  # fmt: skip
             if on_gpu:
                 posed = world.gl.posed
                 assert posed is not None and len(posed.batches.first) > 0
@@ -165,7 +169,7 @@ def test_frames_posed_on_the_gpu_are_the_frames_posed_on_the_cpu(site, monkeypat
                 world.replay(scenario)
                 assert world.gl.posed is not posed  # the new clip's models
                 again = front_view(world, frames[-1], (320, 180), segmentation=True, near_m=0.5)
-                assert np.array_equal(again.rgb, images[True][-1].rgb)
+                assert np.array_equal(again.rgb, images[True][len(frames) - 1].rgb)
     actors = 0
     for gpu, cpu in zip(images[True], images[False], strict=True):
         assert np.array_equal(gpu.segmentation, cpu.segmentation)
