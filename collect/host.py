@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivee2e_data.collect.segments import shortest_unit
+from drivee2e_data.processes import usable_cores
 from drivee2e_data.sim import mesa
 from drivee2e_data.sim.world import resolve_renderer
 
@@ -52,13 +53,6 @@ class HostPlan:
             f"(--workers {self.workers if self.workers_given else 'auto'}), "
             f"{self.lidar} LiDAR"
         )
-
-
-def usable_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def memory_gib() -> float:

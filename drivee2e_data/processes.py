@@ -37,6 +37,14 @@ WORKER_THREADS = {
 WORKER_PATH = {"PYTHONSAFEPATH": "1"}
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity where the platform tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 @contextmanager
 def one_thread_per_worker() -> Iterator[None]:
     """`WORKER_THREADS` and `WORKER_PATH` in the environment (where the user set none) while a

@@ -10,7 +10,6 @@ the same rows, so a training from either is the same training (tested)."""
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -24,6 +23,7 @@ from torch.utils.data import Dataset
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.loaders.cache import FeatureCache
 from drivee2e_data.loaders.collate import collate
+from drivee2e_data.processes import usable_cores
 
 Inputs = Callable[[dict[str, Any]], dict[str, torch.Tensor]]
 
@@ -150,11 +150,7 @@ def loader_workers(source: Rows) -> int:
     """DataLoader workers for a source: none for rows in memory, else up to 8 of the cores."""
     if isinstance(source, TensorRows):
         return 0
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count() or 1
-    return min(8, max(cores - 1, 0))
+    return min(8, max(usable_cores() - 1, 0))
 
 
 def to_device(batch: dict[str, Any], device: torch.device | str) -> dict[str, Any]:

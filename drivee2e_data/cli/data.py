@@ -17,10 +17,10 @@ from drivee2e_data.cli.arguments import (
     _print_table,
     _workers,
 )
-from drivee2e_data.collect.host import usable_cores
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import variants
+from drivee2e_data.processes import usable_cores
 from drivee2e_data.scenario import AgentClass
 
 CLASS_ABBREVIATION = {

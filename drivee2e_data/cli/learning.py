@@ -230,7 +230,7 @@ def _cached(args: argparse.Namespace, spec):  # type: ignore[no-untyped-def]
 def _worker_count(workers: int | str) -> int:
     if workers != "auto":
         return int(workers)
-    from drivee2e_data.collect.host import usable_cores
+    from drivee2e_data.processes import usable_cores
 
     return usable_cores()
 

@@ -37,7 +37,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import SPAWN, clean_up_when_stopped, worker_pool
+from drivee2e_data.processes import SPAWN, clean_up_when_stopped, usable_cores, worker_pool
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -359,11 +359,7 @@ def _yield_to_servers(workers: int, servers: int) -> None:
     and its `servers` are more than the cores: a server's answer then never waits for a core."""
     from drivee2e_data.evaluate.policy_server import worker_niceness
 
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count() or 1
-    if workers + servers > cores and worker_niceness() > 0:
+    if workers + servers > usable_cores() and worker_niceness() > 0:
         os.nice(worker_niceness())
 
 
@@ -402,10 +398,7 @@ CLIPS_PER_STATE_WORKER = 10
 def auto_workers(clips: int, draws: bool) -> int:
     """`--workers auto`: one per core for an agent that reads cameras (drawing is the work);
     for one that reads none, one per `CLIPS_PER_STATE_WORKER` clips, at most one per core."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count() or 1
+    cores = usable_cores()
     if draws:
         return max(1, min(cores, clips))
     return max(1, min(cores, -(-clips // CLIPS_PER_STATE_WORKER)))
