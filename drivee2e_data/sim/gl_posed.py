@@ -28,13 +28,7 @@ from numpy.typing import NDArray
 from drivee2e_data.sim.gl_batches import DrawBatches
 from drivee2e_data.sim.gl_vertices import placed_joints
 from drivee2e_data.sim.models import Animation, ModelMesh
-from drivee2e_data.sim.models.mesh import (
-    JOINT_KINDS,
-    emission_levels,
-    joint_angles_many,
-    rotation_y,
-    rotation_z,
-)
+from drivee2e_data.sim.models.mesh import JointChains, emission_levels
 
 # position (3), joint row (1), normal (3), colour (3), body id + 1, light kind (`ModelMesh.lights`:
 # the shader looks its emission up in the joint's texels), material (`Material`)
@@ -95,36 +89,12 @@ def quaternion_rotations(quaternions: NDArray[np.float64]) -> NDArray[np.float64
 
 
 class JointTable:
-    """The joints of many models as one table, posed together: what `joint_transforms` and
-    `placed_joints` do for one model, done for all of a state's models in a few array
-    operations (one model at a time, a synthetic clip's 18 shown models had cost 1.5 ms a frame
-    of numpy calls on 2 cores, together 0.6). Joint rows in the order of `models`, each
-    model's from its first."""
+    """The joints of many models (`models.mesh.JointChains`, which poses them together), placed
+    at their bodies' poses as the shader's texels; `owner` `(G,)` the model of each joint."""
 
     def __init__(self, models: Sequence[ModelMesh]) -> None:
-        kinds, sides, pivots, parents, depths, owners = [], [], [], [], [], []
-        for owner, model in enumerate(models):
-            first = len(kinds)
-            depth = [0] * len(model.joint_table)
-            for index, joint in enumerate(model.joint_table):
-                kinds.append(JOINT_KINDS.index(joint.kind) if joint.kind in JOINT_KINDS else -1)
-                sides.append(float(joint.side))
-                pivots.append(joint.pivot_m)
-                parents.append(first + (joint.parent if index else 0))
-                if index:
-                    depth[index] = depth[joint.parent] + 1
-                owners.append(owner)
-            depths.extend(depth)
-        self.kind = np.asarray(kinds, np.int64)
-        self.side = np.asarray(sides, np.float64)
-        self.pivot = np.asarray(pivots, np.float64).reshape(-1, 3)
-        self.parent = np.asarray(parents, np.int64)
-        self.owner = np.asarray(owners, np.int64)  # (G,) the model of each joint
-        depth_array = np.asarray(depths, np.int64)
-        self.roots = np.flatnonzero(depth_array == 0)
-        # joints level by level below the roots: a level's parents all lie in levels before it
-        self.levels = [np.flatnonzero(depth_array == level)
-                       for level in range(1, int(depth_array.max(initial=0)) + 1)]  # fmt: skip
+        self.chains = JointChains(models)
+        self.owner = self.chains.owner
 
     def texels(
         self,
@@ -134,29 +104,15 @@ class JointTable:
     ) -> NDArray[np.float32]:
         """`(G, TEXELS_PER_JOINT, 4)` every joint's texels (`joint_texels`) with model k posed by
         `animations[k]` at `positions[k]` `(3,)` and `quaternions[k]` (pybullet's x, y, z, w)."""
-        values = np.array([(a.wheel_angle_rad, a.steer_rad, a.walk_phase_rad, a.walk_amount,
-                            *emission_levels(a)[1:]) for a in animations],
-                          np.float64).reshape(-1, 6)[self.owner]  # fmt: skip
-        pitch, yaw = joint_angles_many(self.kind, self.side, *values[:, :4].T)
-        rotations = rotation_z(yaw) @ rotation_y(pitch)
-        # a joint's own transform [R | p - R p], then its parent's applied: parent @ own
-        transforms = np.empty((len(self.kind), 3, 4))
-        transforms[:, :, :3] = rotations
-        transforms[:, :, 3] = self.pivot - (rotations @ self.pivot[:, :, None])[:, :, 0]
-        transforms[self.roots] = np.eye(3, 4)
-        for level in self.levels:
-            parent = transforms[self.parent[level]]
-            own = transforms[level]
-            translation = (parent[:, :, :3] @ own[:, :, 3:])[:, :, 0] + parent[:, :, 3]
-            transforms[level, :, :3] = parent[:, :, :3] @ own[:, :, :3]
-            transforms[level, :, 3] = translation
+        transforms = self.chains.transforms(animations)
         body = quaternion_rotations(quaternions)[self.owner]  # (G, 3, 3)
-        texels = np.zeros((len(self.kind), TEXELS_PER_JOINT, 4), np.float32)
+        texels = np.zeros((len(self.owner), TEXELS_PER_JOINT, 4), np.float32)
         texels[:, 0:3, 0:3] = body @ transforms[:, :, :3]
         texels[:, 0:3, 3] = (body @ transforms[:, :, 3:])[:, :, 0] + np.asarray(
             positions, np.float64
         )[self.owner]
-        texels[:, 3, 0:2] = values[:, 4:6]
+        lights = np.array([emission_levels(a)[1:] for a in animations], np.float64)
+        texels[:, 3, 0:2] = lights.reshape(-1, 2)[self.owner]
         return texels
 
 
