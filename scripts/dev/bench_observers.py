@@ -5,13 +5,17 @@ process count, the mean ms a step, the host's steps a second, and both against o
 alone (the reference, in the same run).
 
     python scripts/dev/bench_observers.py DATA [--processes 1 4 8 16] [--steps 60]
-        [--input 256x144] [--supersample 2] [--cameras 3] [--no-shadows]
+        [--input 256x144] [--supersample 2] [--cameras 3] [--no-shadows] [--no-meter]
+        [--turns K]
 
 DATA holds scenario bundles (`drivee2e synth`). Where the steps a second stop growing with the
 processes, the GPU (or the cores) is the limit: a host's closed loop cannot go faster than
 that whatever the agent (docs/benchmarks.md, closed loop). `--cameras 1` draws the front camera
 alone, `--no-shadows` every clip without the sun's shadow map (what a view and the shadow pass
-cost, to find where a step's GPU time goes; no agent sees such steps).
+cost, to find where a step's GPU time goes; no agent sees such steps); `--no-meter` without
+the exposure meter (its sample pass and the first of a step's two waits for the GPU);
+`--turns K` lets at most K processes observe at once (a semaphore around each step: whether
+fewer GL contexts submitting at a time give the GPU more steps a second).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
 
 def _drive(
     data: str, clip: str, steps: int, input_size, supersample: float, cameras, shadows: bool,
-    barrier, out,
+    meter: bool, turns, barrier, out,
 ) -> None:  # fmt: skip
     """One process: the world of `clip`, a step to warm up, then `steps` steps timed after every
     process is ready; its seconds and the drawn size into `out`."""
@@ -44,25 +48,37 @@ def _drive(
 
             world.look = dataclasses.replace(world.look, shadows=False)
             world.gl.set_look(world.look)
+        if not meter:
+            render_reduced = world.render_reduced
+
+            def unmetered(views, size, gain_of=None, *args, **kwargs):
+                return render_reduced(views, size, None, *args, **kwargs)
+
+            world.render_reduced = unmetered
         observer = SensorObserver(world, cameras, (1600, 900), input_size, supersample)
         drive.observe(observer, 0)
         barrier.wait()
         start = time.perf_counter()
         for step in range(1, steps + 1):
-            drive.observe(observer, 1 + step % (frames - 1))
+            if turns is None:
+                drive.observe(observer, 1 + step % (frames - 1))
+            else:
+                with turns:
+                    drive.observe(observer, 1 + step % (frames - 1))
         out.put((time.perf_counter() - start, observer.drawn_rig.cameras[0].width,
                  observer.drawn_rig.cameras[0].height))  # fmt: skip
 
 
 def run(data: Path, clips: list[str], processes: int, steps: int, input_size, supersample,
-        cameras=FRONT, shadows: bool = True):  # fmt: skip
+        cameras=FRONT, shadows: bool = True, meter: bool = True, turns: int = 0):  # fmt: skip
     """(mean seconds a step per process, steps a second of them all, drawn size)."""
     context = multiprocessing.get_context("spawn")
     barrier, out = context.Barrier(processes), context.Queue()
+    semaphore = context.Semaphore(turns) if 0 < turns < processes else None
     workers = [
         context.Process(target=_drive, args=(str(data), clips[k % len(clips)], steps,
                                              input_size, supersample, cameras, shadows,
-                                             barrier, out))
+                                             meter, semaphore, barrier, out))
         for k in range(processes)
     ]  # fmt: skip
     for worker in workers:
@@ -84,18 +100,22 @@ def main() -> None:
     parser.add_argument("--supersample", type=float, default=2.0)
     parser.add_argument("--cameras", type=int, choices=(1, 3), default=3)
     parser.add_argument("--no-shadows", action="store_true")
+    parser.add_argument("--no-meter", action="store_true")
+    parser.add_argument("--turns", type=int, default=0, help="at most this many observing at once")
     args = parser.parse_args()
     input_size = tuple(int(v) for v in args.input.split("x"))
     clips = store.scenario_ids(args.data)
     reference = None
     cameras = FRONT if args.cameras == 3 else ("CAM_FRONT",)
     print(f"input {args.input}, supersample {args.supersample}, {args.steps} steps a process, "
-          f"{len(cameras)} cameras, shadows {'off' if args.no_shadows else 'as the clip'}")  # fmt: skip
+          f"{len(cameras)} cameras, shadows {'off' if args.no_shadows else 'as the clip'}, "
+          f"meter {'off' if args.no_meter else 'on'}, turns {args.turns or 'all'}")  # fmt: skip
     print("| processes | drawn | ms a step | steps a second | against one process (step, host) |")
     print("|---|---|---|---|---|")
     for processes in args.processes:
         per_step, rate, drawn = run(args.data, clips, processes, args.steps, input_size,
-                                    args.supersample, cameras, not args.no_shadows)  # fmt: skip
+                                    args.supersample, cameras, not args.no_shadows,
+                                    not args.no_meter, args.turns)  # fmt: skip
         if reference is None:
             reference = (per_step, rate)
         print(f"| {processes} | {drawn[0]}x{drawn[1]} | {1000 * per_step:.1f} | {rate:.0f} "
