@@ -31,7 +31,8 @@ fi
 .venv/bin/ruff format --check .
 # a crashed worker fails the run at once: replaced, its file's tests could leave the run
 # waiting on them for good (seen once under --dist loadfile)
-workers=(-n "${TEST_WORKERS:-auto}" --dist loadfile --max-worker-restart 0)
+# the files dealt heaviest first, in the order tests/conftest.py gives them
+workers=(-n "${TEST_WORKERS:-auto}" --dist loadfile --no-loadscope-reorder --max-worker-restart 0)
 [ "${TEST_WORKERS:-auto}" = 0 ] && workers=(-p no:xdist)
 if [ "${1:-}" = --quick ]; then
     .venv/bin/python -m pytest -q "${workers[@]}" -m "not slow"

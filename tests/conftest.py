@@ -18,6 +18,26 @@ from drivee2e_data.cli import main
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 DEFAULT_CLIPS = 12
+# a test file's weight for dealing files to pytest-xdist's workers: seconds a test takes on
+# the 2-core machine, the median of those marked slow and of the others (2026-11-29)
+SLOW_TEST_S, TEST_S = 8.0, 0.3
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under pytest-xdist, the test files heaviest first (each file's tests in their order):
+    `scripts/test.sh` deals whole files to the workers in this order (`--dist loadfile
+    --no-loadscope-reorder`), so the run's last minutes hold only short files and no worker
+    waits long for the other at the end (longest first; xdist's own order, by the number of
+    tests, left a file of three long tests to run alone for its last 20 s)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ:
+        return
+    weights: dict[str, float] = {}
+    for item in items:
+        file = item.nodeid.split("::")[0]
+        weights[file] = weights.get(file, 0.0) + (
+            SLOW_TEST_S if item.get_closest_marker("slow") else TEST_S
+        )
+    items.sort(key=lambda item: -weights[item.nodeid.split("::")[0]])  # stable: files stay whole
 
 
 def made_once(

@@ -266,9 +266,10 @@ def test_camera_policy_trains_and_drives_with_its_cameras(
 def test_a_served_network_drives_the_same_episodes_as_one_in_each_worker(
     loader_root: Path, tmp_path: Path
 ) -> None:
-    """The camera policy's network on one policy server for both workers (batched) and in each
-    worker (unbatched), on the CPU: the same episodes (scores, steps, events); the network's
-    outputs differ at most in the arithmetic's last bits (1e-7 m), far below any threshold."""
+    """The camera policy's network on one policy server for two workers (batched) and in the
+    evaluating process itself (unbatched, one episode after the other), on the CPU: the same
+    episodes (scores, steps, events); the network's outputs differ at most in the arithmetic's
+    last bits (1e-7 m), far below any threshold."""
     checkpoint = tmp_path / "camera.pt"
     args = ["train", "camera", str(loader_root), "--out", str(checkpoint), "--epochs", "1"]
     assert main(args) == 0
@@ -276,10 +277,10 @@ def test_a_served_network_drives_the_same_episodes_as_one_in_each_worker(
     every = splits.scenario_ids(splits.split_path(loader_root, "default"), "all")
     clips = sorted(every, key=lambda s: store.read_scenario(loader_root, s).num_frames)[:2]
     rows = {}
-    for server in ("on", "off"):
+    for server, workers in (("on", "2"), ("off", "1")):
         out = tmp_path / server
         assert main(["evaluate", str(loader_root), "--split", "all", "--agent", "camera",
-                     "--checkpoint", str(checkpoint), "--out", str(out), "--workers", "2",
+                     "--checkpoint", str(checkpoint), "--out", str(out), "--workers", workers,
                      "--policy-server", server, "--only", *clips]) == 0  # fmt: skip
         rows[server] = episodes(out)
     assert sorted(rows["on"]) == sorted(clips)

@@ -45,13 +45,18 @@ class Path:
         """Positions `(Q, 2)` and headings `(Q,)` at arclengths `s_query_m`."""
         return interpolate_polyline(self.points_m, self.s_m, s_query_m)
 
+    @functools.cached_property
+    def _points(self) -> list[list[float]]:
+        return self.points_m.tolist()  # `pose_at` reads a point a vehicle and step
+
     def pose_at(self, s_query_m: float) -> tuple[float, float, float]:
         """(x, y, heading) at one arclength; fast scalar form of `pose` (points are evenly spaced)."""
-        last = len(self.s_m) - 1
+        points = self._points
+        last = len(points) - 1
         position = min(max(s_query_m, 0.0), self.length_m) / self.length_m * last
         k = min(int(position), last - 1)
         t = position - k
-        (x0, y0), (x1, y1) = self.points_m[k], self.points_m[k + 1]
+        (x0, y0), (x1, y1) = points[k], points[k + 1]
         return x0 + t * (x1 - x0), y0 + t * (y1 - y0), math.atan2(y1 - y0, x1 - x0)
 
     def speed_limit_at(self, s_query_m: float) -> float:

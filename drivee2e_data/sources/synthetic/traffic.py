@@ -153,6 +153,9 @@ class TrafficSimulation:
         self.paths: list[Path] = [network.paths[v.movement_id] for v in vehicles]
         self.ped_s = [polyline_arclength(p.path_m) for p in pedestrians]
         self.ped_s_list = [along.tolist() for along in self.ped_s]  # for bisect
+        # each walker's path as plain floats: read a few hundred thousand times a clip
+        self.ped_x = [p.path_m[:, 0].tolist() for p in pedestrians]
+        self.ped_y = [p.path_m[:, 1].tolist() for p in pedestrians]
         self.max_accel = [DYNAMICS[v.agent_class][0] for v in vehicles]
         self.comfort_brake = [DYNAMICS[v.agent_class][1] for v in vehicles]
         self.half_length = [0.5 * v.length_m for v in vehicles]
@@ -513,11 +516,11 @@ class TrafficSimulation:
         """Pedestrian k's (x, y, heading) at arclength `s_value`, clamped to its path: the
         values `geometry.interpolate_polyline` gives for one query, without its arrays (a
         few per walker and step); the heading is its leg's."""
-        path, along = self.pedestrians[k].path_m, self.ped_s[k]
+        along, xs, ys = self.ped_s_list[k], self.ped_x[k], self.ped_y[k]
         s_clamped = min(max(s_value, 0.0), along[-1])
-        segment = min(max(bisect.bisect_right(self.ped_s_list[k], s_clamped) - 1, 0), len(path) - 2)
-        (x0, y0), (x1, y1) = path[segment, :2], path[segment + 1, :2]
-        return (*self._walker_xy(k, s_value), float(np.arctan2(y1 - y0, x1 - x0)))
+        segment = min(max(bisect.bisect_right(along, s_clamped) - 1, 0), len(xs) - 2)
+        dx, dy = xs[segment + 1] - xs[segment], ys[segment + 1] - ys[segment]
+        return (*self._walker_xy(k, s_value), float(np.arctan2(dy, dx)))
 
     def _road_clear(self, ped: PedestrianSpec, s: NDArray, v: NDArray, state: NDArray) -> bool:
         """No vehicle is on the crossing, and none is bearing down on it."""
@@ -573,11 +576,8 @@ class TrafficSimulation:
     def _walker_xy(self, k: int, s_value: float) -> tuple[float, float]:
         """Pedestrian k's position at arclength `s_value` on its path (its few straight legs),
         clamped to its ends."""
-        path, along = self.pedestrians[k].path_m, self.ped_s[k]
-        return (
-            float(np.interp(s_value, along, path[:, 0])),
-            float(np.interp(s_value, along, path[:, 1])),
-        )
+        along = self.ped_s_list[k]
+        return _interp(s_value, along, self.ped_x[k]), _interp(s_value, along, self.ped_y[k])
 
     def _walker_in_the_way(self, k: int, s_next: float, s: NDArray, state: NDArray) -> bool:
         """Whether pedestrian k's next step would bring it within `WALKER_GAP_M` of a walker
@@ -610,15 +610,14 @@ class TrafficSimulation:
     def _record(
         self, step: int, s: NDArray, v: NDArray, state: NDArray, accel: NDArray, result: SimResult
     ) -> None:
-        for i in range(len(self.vehicles)):
-            if state[i] != 1:
-                continue
-            result.x_m[i, step], result.y_m[i, step] = self.vehicle_xy[i]
-            result.yaw_rad[i, step] = self.vehicle_yaw[i]
-            result.speed_mps[i, step] = v[i]
-            result.accel_mps2[i, step] = accel[i]
-            result.s_m[i, step] = s[i]
-            result.valid[i, step] = True
+        alive = np.flatnonzero(state[: len(self.vehicles)] == 1)
+        result.x_m[alive, step] = self.vehicle_xy[alive, 0]
+        result.y_m[alive, step] = self.vehicle_xy[alive, 1]
+        result.yaw_rad[alive, step] = self.vehicle_yaw[alive]
+        result.speed_mps[alive, step] = v[alive]
+        result.accel_mps2[alive, step] = accel[alive]
+        result.s_m[alive, step] = s[alive]
+        result.valid[alive, step] = True
         offset = len(self.vehicles)
         for k in range(len(self.pedestrians)):
             row = offset + k
@@ -631,3 +630,21 @@ class TrafficSimulation:
             result.accel_mps2[row, step] = 0.0
             result.s_m[row, step] = s[row]
             result.valid[row, step] = True
+
+
+def _interp(x: float, xp: list[float], fp: list[float]) -> float:
+    """`float(np.interp(x, xp, fp))` for one value, to the same bits (numpy's steps: the ends
+    held, a sample's own value at a sample, else the segment's slope times the offset from its
+    start plus its start's value), without the arrays numpy makes per call."""
+    last = len(xp) - 1
+    if x > xp[last]:
+        return float(fp[last])
+    if x < xp[0]:
+        return float(fp[0])
+    if x == xp[last]:
+        return float(fp[last])
+    j = bisect.bisect_right(xp, x) - 1
+    if xp[j] == x:
+        return float(fp[j])
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    return float(slope * (x - xp[j]) + fp[j])
