@@ -221,3 +221,29 @@ def test_a_target_the_site_cannot_stage_falls_back_to_the_next() -> None:
     assert synthetic.TARGET_ORDER[91 % len(synthetic.TARGET_ORDER)].value == "COV-LFT"
     assert scenario.metadata["target_sub_scenario"] == "YLW-LFT"
     assert scenario.behavior is not None
+
+
+def test_a_walkers_interpolation_is_numpys_to_the_bit():
+    """The traffic step interpolates walkers on plain floats (`traffic._interp`) for speed; it
+    gives `np.interp`'s value to the bit: inside a leg, at a sample (a repeated one too: the
+    later leg's), before the first and past the last sample."""
+    from drivee2e_data.sources.synthetic.traffic import _interp
+
+    rng = np.random.default_rng(11)
+    checked = 0
+    for trial in range(300):
+        count = int(rng.integers(2, 8))
+        xp = np.concatenate([[0.0], np.cumsum(rng.uniform(0.0, 5.0, count - 1))])
+        if trial % 4 == 0 and count > 2:
+            xp[2] = xp[1]  # a leg of no length
+        fp = rng.uniform(-100.0, 100.0, count)
+        queries = np.concatenate([rng.uniform(-2.0, xp[-1] + 2.0, 20), xp, [xp[-1], -0.0]])
+        for x in queries:
+            assert _interp(float(x), xp.tolist(), fp.tolist()) == float(np.interp(x, xp, fp))
+            checked += 1
+    assert checked > 7000
+    assert _interp(1.0, [0.0, 1.0, 1.0, 2.0], [0.0, 5.0, 7.0, 9.0]) == 7.0  # the later leg's
+    assert _interp(0.5, [0.0, 1.0], [2.0, 4.0]) == 3.0
+    assert (
+        _interp(-1.0, [0.0, 1.0], [2.0, 4.0]) == 2.0 and _interp(3.0, [0.0, 1.0], [2.0, 4.0]) == 4.0
+    )
