@@ -32,7 +32,10 @@ install_all() {
 # cannot be had or fails, pip installs everything as before.
 installed=""
 if [ "${DRIVEE2E_INSTALLER:-uv}" != pip ] && python -m pip install --quiet uv 2>/dev/null; then
-    uv_options=(--quiet --compile-bytecode --python .venv/bin/python)
+    uv_options=(--quiet --python .venv/bin/python)
+    # byte-compiled at install (PYTHONDONTWRITEBYTECODE machines compile every import in
+    # memory otherwise), unless DRIVEE2E_COMPILE=0 leaves it to the first imports (the tests)
+    [ "${DRIVEE2E_COMPILE:-1}" = 0 ] || uv_options+=(--compile-bytecode)
     # pip's settings from its environment variables and its config files, and its certificates
     [ -z "${PIP_CERT:-}" ] || export SSL_CERT_FILE="${SSL_CERT_FILE:-$PIP_CERT}"
     for link in ${PIP_FIND_LINKS:-} $(python -m pip config get global.find-links 2>/dev/null || true); do

@@ -7,7 +7,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # the tests run the Ray backend too (on a local Ray) and the data module under Lightning
-EXTRAS=dev,viz,ray,lightning bash scripts/install.sh
+# not byte-compiled at install: the tests' first imports write the bytecode of the modules the
+# tests use (a fraction of torch's and the extras'), which every later process reads, even
+# where the machine sets PYTHONDONTWRITEBYTECODE
+DRIVEE2E_COMPILE=0 EXTRAS=dev,viz,ray,lightning bash scripts/install.sh
+export PYTHONDONTWRITEBYTECODE=
 # The official nuscenes-devkit checks the nuScenes export; its pins (numpy<2, shapely 2.0) clash
 # with this package, so it gets an environment of its own: by the uv install.sh installed where
 # it did (seconds, from uv's cache), else by pip.
