@@ -6,10 +6,11 @@
 # data made once); TEST_WORKERS=0 runs the tests in one process, as before.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# the tests run the Ray backend too (on a local Ray) and the data module under Lightning
-# not byte-compiled at install: the tests' first imports write the bytecode of the modules the
-# tests use (a fraction of torch's and the extras'), which every later process reads, even
-# where the machine sets PYTHONDONTWRITEBYTECODE
+# The tests run the Ray backend too (on a local Ray) and the data module under Lightning. The
+# environment is not byte-compiled at install: the tests' first imports write the bytecode of
+# the modules the tests use (a fraction of torch's and the extras'), which every later process
+# reads, even where the machine sets PYTHONDONTWRITEBYTECODE (install 31.8 -> 14.8 s, pytest
+# +8 s on 2 cores).
 DRIVEE2E_COMPILE=0 EXTRAS=dev,viz,ray,lightning bash scripts/install.sh
 export PYTHONDONTWRITEBYTECODE=
 # The official nuscenes-devkit checks the nuScenes export; its pins (numpy<2, shapely 2.0) clash
