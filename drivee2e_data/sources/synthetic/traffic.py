@@ -151,9 +151,9 @@ class TrafficSimulation:
         self.vehicles, self.pedestrians = vehicles, pedestrians
         self.steps = round(duration_s / STEP_S) + 1
         self.paths: list[Path] = [network.paths[v.movement_id] for v in vehicles]
-        self.ped_s = [polyline_arclength(p.path_m) for p in pedestrians]
-        self.ped_s_list = [along.tolist() for along in self.ped_s]  # for bisect
-        # each walker's path as plain floats: read a few hundred thousand times a clip
+        # each walker's path (its arclength too) as plain floats: read a few hundred thousand
+        # times a clip, by bisect and `_interp`
+        self.ped_s = [polyline_arclength(p.path_m).tolist() for p in pedestrians]
         self.ped_x = [p.path_m[:, 0].tolist() for p in pedestrians]
         self.ped_y = [p.path_m[:, 1].tolist() for p in pedestrians]
         self.max_accel = [DYNAMICS[v.agent_class][0] for v in vehicles]
@@ -516,7 +516,7 @@ class TrafficSimulation:
         """Pedestrian k's (x, y, heading) at arclength `s_value`, clamped to its path: the
         values `geometry.interpolate_polyline` gives for one query, without its arrays (a
         few per walker and step); the heading is its leg's."""
-        along, xs, ys = self.ped_s_list[k], self.ped_x[k], self.ped_y[k]
+        along, xs, ys = self.ped_s[k], self.ped_x[k], self.ped_y[k]
         s_clamped = min(max(s_value, 0.0), along[-1])
         segment = min(max(bisect.bisect_right(along, s_clamped) - 1, 0), len(xs) - 2)
         dx, dy = xs[segment + 1] - xs[segment], ys[segment + 1] - ys[segment]
@@ -576,7 +576,7 @@ class TrafficSimulation:
     def _walker_xy(self, k: int, s_value: float) -> tuple[float, float]:
         """Pedestrian k's position at arclength `s_value` on its path (its few straight legs),
         clamped to its ends."""
-        along = self.ped_s_list[k]
+        along = self.ped_s[k]
         return _interp(s_value, along, self.ped_x[k]), _interp(s_value, along, self.ped_y[k])
 
     def _walker_in_the_way(self, k: int, s_next: float, s: NDArray, state: NDArray) -> bool:
