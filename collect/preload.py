@@ -6,7 +6,7 @@ from __future__ import annotations
 import multiprocessing.context
 from collections.abc import Sequence
 
-from drivee2e_data.processes import preloading, start_server
+from drivee2e_data.processes import argument_value, preloading, start_server
 
 # what every pool worker imports, once, in the server it is forked from (`processes.preloading`):
 # the collector, and what a world imports when it is set up. numpy loads `numpy.ma` and
@@ -33,24 +33,10 @@ def start_worker_server() -> None:
     start_server(worker_context())
 
 
-def _option(argv: Sequence[str], flag: str) -> str | None:
-    """The value given to `flag` in `argv` (`--flag V` or `--flag=V`), the last one; None if
-    absent."""
-    value = None
-    for k, word in enumerate(argv):
-        if word == flag and k + 1 < len(argv):
-            value = argv[k + 1]
-        elif word.startswith(flag + "="):
-            value = word.split("=", 1)[1]
-    return value
-
-
 def pools_workers(argv: Sequence[str]) -> bool:
     """Whether `drivee2e` arguments `argv` run a collection on a local pool of workers:
     `collect` with `--workers` other than 1 (the default) and the local backend."""
     if not argv or argv[0] != "collect":
         return False
-    return _option(argv, "--workers") not in (None, "1") and _option(argv, "--backend") in (
-        None,
-        "local",
-    )
+    workers, backend = argument_value(argv, "--workers"), argument_value(argv, "--backend")
+    return workers not in (None, "1") and backend in (None, "local")

@@ -94,6 +94,18 @@ def socket_fits(temporary: str | None = None) -> bool:
     return len(folder) + SERVER_SOCKET_SUFFIX_BYTES <= SOCKET_PATH_BYTES
 
 
+def argument_value(argv: Sequence[str], flag: str) -> str | None:
+    """The value given to `flag` in command-line arguments `argv` (`--flag V` or `--flag=V`), the
+    last one; None if absent (read before the command's parser runs: `drivee2e_data.launch`)."""
+    value = None
+    for k, word in enumerate(argv):
+        if word == flag and k + 1 < len(argv):
+            value = argv[k + 1]
+        elif word.startswith(flag + "="):
+            value = word.split("=", 1)[1]
+    return value
+
+
 def start_server(context: multiprocessing.context.BaseContext) -> None:
     """Start `preloading`'s server now, where `context` has one (with `one_thread_per_worker`'s
     environment), so that it imports while the parent still plans: its first pool's workers

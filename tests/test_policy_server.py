@@ -132,3 +132,40 @@ def test_the_server_takes_what_is_queued_without_waiting_unless_told(monkeypatch
     assert policy_server.gather_seconds() == 0.0
     monkeypatch.setenv(policy_server.GATHER_MS_VARIABLE, "2.5")
     assert policy_server.gather_seconds() == 0.0025
+
+
+def test_a_server_forked_from_the_fork_server_ends_with_the_command_it_is_given() -> None:
+    """A GPU's policy server forks from the pool's fork server, which outlives a command killed
+    outright: the server watches the command it is given, not its parent."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    from drivee2e_data.agents.registry import build
+    from drivee2e_data.evaluate.policy_server import ServerHandle, serve
+    from drivee2e_data.processes import SPAWN, preloading
+
+    context = preloading(["json"])
+    if context.get_start_method() != "forkserver":
+        pytest.skip("no fork server here")
+    command = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    handle = ServerHandle(SPAWN.Queue(), (SPAWN.Queue(),), "")
+    server = context.Process(
+        target=serve,
+        args=("constant-velocity", None, "cpu", handle.requests, handle.replies, build, 1, 2,
+              None, command.pid),
+        daemon=True,
+    )  # fmt: skip
+    server.start()
+    try:
+        server.join(timeout=3.0)
+        assert server.exitcode is None  # serving while the command runs
+        command.kill()
+        command.wait()
+        server.join(timeout=30.0)
+        assert server.exitcode is not None  # ended with it, though no None request came
+    finally:
+        if server.exitcode is None:
+            server.terminate()
+        command.kill()

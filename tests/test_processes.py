@@ -14,6 +14,7 @@ import pytest
 
 from drivee2e_data import processes
 from drivee2e_data.collect.preload import pools_workers
+from drivee2e_data.evaluate.preload import pools_workers as evaluation_pools_workers
 from drivee2e_data.processes import WORKER_THREADS, one_thread_per_worker
 
 # a child that loads numpy, multiplies 200,000 rows by a 3x3 matrix (the size the LiDAR's
@@ -207,6 +208,45 @@ def test_the_entry_point_starts_the_pool_server_before_the_command_runs(monkeypa
         "server",
         ("command", ["collect", "D", "--workers", "2"]),
         ("command", ["collect", "D"]),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("argv", "pooled"),
+    [
+        (["evaluate", "DATA", "--workers", "auto"], True),
+        (["evaluate", "DATA", "--agent", "tcp", "--workers=16"], True),
+        (["evaluate", "DATA"], False),  # one worker by default
+        (["evaluate", "DATA", "--workers", "1"], False),
+        (["collect", "DATA", "--workers", "8"], False),
+        ([], False),
+    ],
+)
+def test_the_command_line_says_when_an_evaluation_runs_a_pool(argv, pooled):
+    assert evaluation_pools_workers(argv) is pooled
+
+
+def test_the_entry_point_starts_an_evaluations_server_with_its_agents_module(monkeypatch):
+    from drivee2e_data import cli, launch
+    from drivee2e_data.evaluate import preload
+
+    started = []
+    monkeypatch.setattr(preload, "start_worker_server", started.append)
+    monkeypatch.setattr(cli, "main", lambda argv: 0)
+    for argv in (
+        ["evaluate", "D", "--workers", "4", "--agent", "tcp", "--checkpoint", "t.pt"],
+        ["evaluate", "D", "--workers", "4"],  # the expert by default
+        ["evaluate", "D", "--workers", "4", "--agent", "my_module:MyAgent"],
+        ["evaluate", "D", "--workers", "4", "--agent-cmd", "python my_agent.py"],
+        ["evaluate", "D", "--agent", "tcp"],  # one worker: no pool, no server
+    ):
+        monkeypatch.setattr(sys, "argv", ["drivee2e", *argv])
+        assert launch.main() == 0
+    assert started == [
+        ("drivee2e_data.agents.tcp",),
+        ("drivee2e_data.agents.expert",),
+        (),
+        (),
     ]
 
 

@@ -91,8 +91,10 @@ def add_evaluate(commands) -> None:  # type: ignore[no-untyped-def]
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
-    if args.agent_cmd is None:
-        registry.build(args.agent, args.checkpoint)  # a bad name or checkpoint fails here, once
+    # a bad name or checkpoint fails here, once: the checkpoint read and its kind checked, the
+    # network left to what runs it (a policy server, the workers); built here as well, it started
+    # CUDA in this process for nothing, about a second before the pool could start (H200 host)
+    agent = None if args.agent_cmd else registry.build(args.agent, args.checkpoint, network=False)
     options = runner.EvaluationOptions(
         agent=args.agent,
         checkpoint=str(args.checkpoint) if args.checkpoint else None,
@@ -117,7 +119,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise DriveE2EError(f"{manifest}: split {args.split!r} has no clips to evaluate")
     workers = args.workers
     if workers == "auto":
-        reads = () if args.agent_cmd else tuple(registry.build(args.agent, args.checkpoint).sensors)
+        reads = () if agent is None else tuple(agent.sensors)
         workers = runner.auto_workers(len(clips), bool(reads) or bool(args.agent_cmd))
         print(f"evaluate: {workers} workers (--workers auto)")
     out = args.out or args.data / runner.RESULTS_FOLDER / runner.run_name(options, args.split)

@@ -130,13 +130,15 @@ def serve(
     served: int = 1,
     batch_shape: int = BATCH_ROWS,
     stats_path: str | None = None,
+    command: int | None = None,
 ) -> None:
     """The server's loop (its own process): build the agent on `device`, then answer the
     requests of the `served` workers it serves in batches (each run at `batch_shape` rows,
     `batch_plans`) until a None request comes, or until the command that started it is gone
     (`processes.end_with`: killed outright, it sends none); at a None request, its
-    `ServerStats` into `stats_path` (JSON) if given."""
-    end_with(os.getppid())
+    `ServerStats` into `stats_path` (JSON) if given. `command` is the process that started it
+    (its parent where not given; a fork server's child has the server as its parent)."""
+    end_with(os.getppid() if command is None else command)
     os.environ[AGENT_DEVICE_VARIABLE] = device
     import torch
 

@@ -34,10 +34,17 @@ import pyarrow.parquet as pq
 from drivee2e_data import store
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.evaluate import preload
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-from drivee2e_data.processes import SPAWN, clean_up_when_stopped, usable_cores, worker_pool
+from drivee2e_data.processes import (
+    SPAWN,
+    clean_up_when_stopped,
+    start_server,
+    usable_cores,
+    worker_pool,
+)
 
 RESULTS_FOLDER = "results"
 EPISODES_FOLDER = "episodes"
@@ -377,15 +384,19 @@ def _run_pool(
     on_episode: Callable[[dict[str, Any]], None] | None,
     agent_factory: AgentFactory | None,
 ) -> None:
+    # the workers fork from a server that imported what they need once (started by the command's
+    # entry point already, or now: its imports run while the policy servers start)
+    context = preload.worker_context()
+    start_server(context)
     # longest clips first: the last worker to finish then waits least for the others
     pending = sorted(pending, key=lambda s: -_frames(root, s))
-    counter = SPAWN.Value("i", 0)
+    counter = context.Value("i", 0)
     gpus = _render_gpus(options)
-    servers = _start_servers(options, workers, agent_factory, out)
+    servers = _start_servers(options, workers, agent_factory, out, context)
     handles = tuple(handle for handle, _ in servers)
     try:
         _pool_episodes(root, pending, options, out, workers, on_episode, agent_factory,
-                       (counter, handles, gpus, workers))  # fmt: skip
+                       (counter, handles, gpus, workers), context)  # fmt: skip
     finally:
         _stop_servers(servers)
 
@@ -414,12 +425,16 @@ def _render_gpus(options: EvaluationOptions) -> tuple[int, ...]:
 
 
 def _start_servers(
-    options: EvaluationOptions, workers: int, agent_factory: AgentFactory | None, out: Path
+    options: EvaluationOptions,
+    workers: int,
+    agent_factory: AgentFactory | None,
+    out: Path,
+    context: Any = SPAWN,
 ) -> list[tuple[Any, Any]]:
     """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
     GPU) for a servable agent: (handle, process) each, each writing what its batches cost into
     `out`/policy_server_<device>.json when it stops; none where the agent runs in its
-    workers."""
+    workers. A GPU's server is started by `context` (the pool's), the CPU's spawned."""
     if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
         return []
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
@@ -443,11 +458,16 @@ def _start_servers(
     slots = slot_folder()
     for device in devices:
         handle = ServerHandle(SPAWN.Queue(), replies, slots)
-        process = SPAWN.Process(
+        # forked from the workers' server, a GPU's server finds torch imported (CUDA is not
+        # started there, so a fork may start it): ready about when the workers are, where
+        # spawned it imported torch after the command had (4 s each on an H200 host); the CPU's
+        # is spawned, with the host's threads rather than the workers' one
+        starter = context if device.startswith("cuda") else SPAWN
+        process = starter.Process(
             target=serve,
             args=(options.agent, options.checkpoint, device, handle.requests, replies,
                   agent_factory, served, BATCH_ROWS,
-                  str(out / f"policy_server_{device.replace(':', '')}.json")),
+                  str(out / f"policy_server_{device.replace(':', '')}.json"), os.getpid()),
             daemon=True,
         )  # fmt: skip
         process.start()
@@ -477,8 +497,9 @@ def _pool_episodes(
     on_episode: Callable[[dict[str, Any]], None] | None,
     agent_factory: AgentFactory | None,
     initargs: tuple[Any, ...],
+    context: Any,
 ) -> None:
-    with worker_pool(workers, _init_worker, initargs) as pool:
+    with worker_pool(workers, _init_worker, initargs, context) as pool:
         futures: dict[Future, str] = {
             pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
         }

@@ -1,0 +1,102 @@
+"""The timeline probe of `scripts/dev/start_timeline.py`: on PYTHONPATH with TIMELINE_LOG set,
+every Python process of a command (its pools' workers and servers too) appends to that file its
+start, the first import of a few heavy modules, and the entries and exits of the functions in
+`WRAP`, each with its wall time and process id."""
+
+import functools
+import importlib.abc
+import importlib.util
+import os
+import sys
+import time
+
+LOG = os.environ.get("TIMELINE_LOG")
+WRAP = {
+    "drivee2e_data.evaluate.runner": [
+        "_init_worker",
+        "evaluate_clip",
+        "_run_pool",
+        "_start_servers",
+        "prepare_run",
+        "write_results",
+        "_pool_episodes",
+    ],
+    "drivee2e_data.evaluate.policy_server": ["serve", "SlotReader"],
+    "drivee2e_data.processes": ["_start_worker"],
+    "drivee2e_data.sim.world": ["World"],
+    "drivee2e_data.cli": ["main"],
+}
+
+
+def note(tag):
+    with open(LOG, "a") as f:
+        f.write(f"{time.time():.3f} {os.getpid()} {tag}\n")
+
+
+def wrap(module, name):
+    target = getattr(module, name, None)
+    if target is None:
+        return
+    if isinstance(target, type):
+        init = target.__init__
+
+        @functools.wraps(init)
+        def __init__(self, *a, **k):
+            note(f"> {name}")
+            try:
+                return init(self, *a, **k)
+            finally:
+                note(f"< {name}")
+
+        target.__init__ = __init__
+        return
+
+    @functools.wraps(target)
+    def wrapper(*a, **k):
+        note(f"> {name}")
+        try:
+            return target(*a, **k)
+        finally:
+            note(f"< {name}")
+
+    setattr(module, name, wrapper)
+
+
+class Finder(importlib.abc.MetaPathFinder):
+    def find_spec(self, fullname, path, target=None):
+        if fullname not in WRAP:
+            return None
+        for finder in sys.meta_path:
+            if finder is self:
+                continue
+            spec = (
+                finder.find_spec(fullname, path, target) if hasattr(finder, "find_spec") else None
+            )
+            if spec is not None:
+                break
+        else:
+            return None
+        loader = spec.loader
+        original = loader.exec_module
+
+        def exec_module(module):
+            original(module)
+            for name in WRAP[fullname]:
+                wrap(module, name)
+
+        loader.exec_module = exec_module
+        return spec
+
+
+if LOG:
+    note("interpreter " + " ".join(sys.argv)[:60])
+    sys.meta_path.insert(0, Finder())
+    _seen: set[str] = set()
+
+    def audit(event, args):
+        if event == "import" and args[0] in ("torch", "pybullet", "moderngl", "cv2"):
+            if args[0] not in _seen:
+                _seen.add(args[0])
+                note(f"import {args[0]}")
+
+    sys.addaudithook(audit)
