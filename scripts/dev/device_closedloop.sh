@@ -11,8 +11,11 @@
 # GPU's utilisation over each run. VARIANTS names more runs of this version, each with its
 # environment: "NAME:VAR=VALUE,VAR=VALUE" (e.g. the policy server as before,
 # "oldserver:DRIVEE2E_GATHER_MS=2,DRIVEE2E_WORKER_NICENESS=0").
-#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [BASE_TAR=out/base_overlay.tar]
-#   [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."] bash scripts/dev/device_closedloop.sh
+# TIMELINE=1 runs each evaluation through scripts/dev/start_timeline.py (its summary printed,
+# its raw timeline in $OUT).
+#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [TIMELINE=1]
+#   [BASE_TAR=out/base_overlay.tar] [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."]
+#   bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
 CLIPS="${CLIPS:-40}"
@@ -76,9 +79,14 @@ for agent in $AGENTS; do
             logger=$!
             path=/tmp/proj
             [ "$version" = base ] && path=/tmp/proj_base
-            stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" python3 -m drivee2e_data.cli evaluate "$DATA" \
+            timeline=()  # TIMELINE=1: where the command's start went (start_timeline.py)
+            [ -z "${TIMELINE:-}" ] || timeline=(python3 "$repo/scripts/dev/start_timeline.py"
+                --log "$OUT/timeline-$agent-w$workers-$name.log" --)
+            stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" "${timeline[@]}" \
+                python3 -m drivee2e_data.cli evaluate "$DATA" \
                 --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" --workers "$workers" \
                 --out "$run"
+            [ -z "${TIMELINE:-}" ] || sed 's/^/  /' /tmp/stage.log
             kill "$logger"
             echo "  $name: GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
                 {printf "%.0f", s/n}' "/tmp/util-$agent-$workers")"

@@ -33,23 +33,25 @@ def read(log: Path) -> tuple[float, dict[int, list[tuple[float, str]]]]:
 
 
 def summary(by_process: dict[int, list[tuple[float, str]]]) -> list[str]:
+    """The start's marks, each where the command reached it."""
+
     def times(tag: str) -> list[float]:
         return sorted(t for marks in by_process.values() for t, m in marks if m == tag)
 
-    worlds, servers = times("< World"), times("> SlotReader")
-    lines = [
-        f"first episode began      {times('> evaluate_clip')[0]:7.2f} s",
-        f"worlds set up            {worlds[0]:7.2f} s the first, {worlds[-1]:7.2f} the last "
-        f"(of {len(worlds)})"
-        if worlds
-        else "no world set up",
-    ]
-    lines += [f"a policy server ready    {t:7.2f} s" for t in servers]
-    lines += [
-        f"last episode ended       {times('< evaluate_clip')[-1]:7.2f} s",
-        f"the command ended        {times('< main')[-1]:7.2f} s",
-    ]
-    return lines
+    # each process's first world: when that worker could take its first step
+    firsts = sorted(
+        min(t for t, m in marks if m == "< World")
+        for marks in by_process.values()
+        if any(m == "< World" for _, m in marks)
+    )
+    rows = [("first episode began", times("> evaluate_clip")[:1])]
+    if firsts:
+        rows += [("a worker's world set up", [firsts[0]])]
+        rows += [(f"every worker's ({len(firsts)})", [firsts[-1]])]
+    rows += [("a policy server ready", times("> SlotReader"))]
+    rows += [("last episode ended", times("< evaluate_clip")[-1:])]
+    rows += [("the command ended", times("< main")[-1:])]
+    return [f"{label:<24} {t:7.2f} s" for label, found in rows for t in found]
 
 
 def main() -> int:
@@ -69,6 +71,12 @@ def main() -> int:
     if done.returncode != 0:
         print(f"start_timeline: the command exited with {done.returncode}", file=sys.stderr)
         return done.returncode
+    if not log.is_file():
+        print(
+            "start_timeline: no process of the command logged (not a Python command?)",
+            file=sys.stderr,
+        )
+        return 1
     _, by_process = read(log)
     print("\n".join(summary(by_process)))
     if args.processes:
