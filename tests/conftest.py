@@ -15,6 +15,7 @@ from filelock import FileLock
 
 from drivee2e_data import splits, store
 from drivee2e_data.cli import main
+from drivee2e_data.processes import usable_cores
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 DEFAULT_CLIPS = 12
@@ -37,10 +38,10 @@ def pytest_configure(config: pytest.Config) -> None:
     workers = getattr(config.option, "numprocesses", None)
     if not workers or "PYTEST_XDIST_WORKER" in os.environ:
         return
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    cores = usable_cores()
     workers = cores if workers == "auto" else int(workers)
     for name in NATIVE_THREADS:
-        os.environ.setdefault(name, str(max(1, (cores or 1) // max(1, workers))))
+        os.environ.setdefault(name, str(max(1, cores // max(1, workers))))
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -3,7 +3,11 @@ inputs alone, not on which other workers' requests were gathered with it."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
+import pytest
 import torch
 
 from drivee2e_data.evaluate.policy_server import batch_plans
@@ -137,11 +141,6 @@ def test_the_server_takes_what_is_queued_without_waiting_unless_told(monkeypatch
 def test_a_server_forked_from_the_fork_server_ends_with_the_command_it_is_given() -> None:
     """A GPU's policy server forks from the pool's fork server, which outlives a command killed
     outright: the server watches the command it is given, not its parent."""
-    import subprocess
-    import sys
-
-    import pytest
-
     from drivee2e_data.agents.registry import build
     from drivee2e_data.evaluate.policy_server import ServerHandle, serve
     from drivee2e_data.processes import SPAWN, preloading

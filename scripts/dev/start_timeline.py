@@ -20,7 +20,8 @@ from pathlib import Path
 PROBE = Path(__file__).resolve().parent / "timeline"
 
 
-def read(log: Path) -> tuple[float, dict[int, list[tuple[float, str]]]]:
+def read(log: Path) -> dict[int, list[tuple[float, str]]]:
+    """Each process's marks (seconds from the first process's start, mark) in time order."""
     rows = []
     for line in log.read_text().splitlines():
         when, pid, tag = line.split(None, 2)
@@ -29,7 +30,7 @@ def read(log: Path) -> tuple[float, dict[int, list[tuple[float, str]]]]:
     by_process: dict[int, list[tuple[float, str]]] = collections.defaultdict(list)
     for when, pid, tag in sorted(rows):
         by_process[pid].append((when - start, tag))
-    return start, by_process
+    return by_process
 
 
 def summary(by_process: dict[int, list[tuple[float, str]]]) -> list[str]:
@@ -77,7 +78,7 @@ def main() -> int:
             file=sys.stderr,
         )
         return 1
-    _, by_process = read(log)
+    by_process = read(log)
     print("\n".join(summary(by_process)))
     if args.processes:
         for pid, marks in by_process.items():

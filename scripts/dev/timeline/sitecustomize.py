@@ -5,7 +5,6 @@ start, the first import of a few heavy modules, and the entries and exits of the
 
 import functools
 import importlib.abc
-import importlib.util
 import os
 import sys
 import time
