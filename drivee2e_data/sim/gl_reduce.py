@@ -5,14 +5,17 @@ Their exposure and area resize (`conditions.expose`, then OpenCV's INTER_AREA, a
 and the camera's collection do it) run as two shader passes over the drawn colour texture:
 one samples the exposure meter's pixels (`shaders/sample.frag`), read back for the gain; the
 other exposes each drawn pixel by that gain and averages the pixels under each output pixel
-(`shaders/reduce.frag`). Only the meter's and the output's pixels come back. Where GL draws
-on the CPU, the same arithmetic by OpenCV on the whole view read back costs less
-(`reduced_on_cpu`).
+(`shaders/reduce.frag`). Only the meter's and the output's pixels come back. The views of a step lie side by side in
+one framebuffer at each stage (`atlas`): drawn, sampled and reduced, each stage one
+framebuffer and one read for all of them, since a GPU that draws for many processes pays for
+each framebuffer a step binds. Where GL draws on the CPU, the same arithmetic by OpenCV on the
+whole view read back costs less (`reduced_on_cpu`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,39 +24,95 @@ from numpy.typing import NDArray
 TEXTURE_UNIT = 4
 
 
+@dataclass(frozen=True)
+class Atlas:
+    """Views laid out in one framebuffer of `size` (width, height): view k's lower left corner
+    at `origins[k]` (x, y) in GL's window coordinates, its own size at `sizes[k]`."""
+
+    size: tuple[int, int]
+    origins: tuple[tuple[int, int], ...]
+    sizes: tuple[tuple[int, int], ...]
+
+    def viewport(self, k: int) -> tuple[int, int, int, int]:
+        """View k's rectangle (x, y, width, height)."""
+        return (*self.origins[k], *self.sizes[k])
+
+    def view_of(self, pixels: NDArray, k: int) -> NDArray:
+        """View k's part of `pixels` (H, W, ...), the whole atlas as read back (GL's row 0
+        first)."""
+        x, y, width, height = self.viewport(k)
+        return pixels[y : y + height, x : x + width]
+
+
+def atlas(sizes: Sequence[tuple[int, int]], max_px: int) -> Atlas:
+    """`sizes` (width, height each) left to right in rows at most `max_px` wide (GL's largest
+    framebuffer side), each row as high as its highest view, rows bottom up."""
+    origins: list[tuple[int, int]] = []
+    x = y = row_height = width = 0
+    for view_width, view_height in sizes:
+        if view_width > max_px or view_height > max_px:
+            raise ValueError(f"a view of {view_width}x{view_height} exceeds GL's {max_px} pixels")
+        if x and x + view_width > max_px:
+            x, y, row_height = 0, y + row_height, 0
+        origins.append((x, y))
+        x += view_width
+        width, row_height = max(width, x), max(row_height, view_height)
+    height = y + row_height
+    if height > max_px:
+        raise ValueError(f"{len(sizes)} views of {sizes[0]} do not fit {max_px} pixels square")
+    return Atlas((width, height), tuple(origins), tuple(tuple(s) for s in sizes))
+
+
 class ViewReduction:
-    """The two passes, each one triangle over a small framebuffer the caller gives (`corners`:
-    a buffer of the triangle's three corners in clip space, `in_corner`)."""
+    """The two passes, each one triangle a view over its rectangle of an atlas the caller gives
+    (`corners`: a buffer of the triangle's three corners in clip space, `in_corner`), reading
+    the view's drawn colour texture."""
 
     def __init__(self, context, sample_program, reduce_program, corners) -> None:
         self.context = context
         self.sample_array = context.vertex_array(sample_program, [(corners, "2f", "in_corner")])
         self.reduce_array = context.vertex_array(reduce_program, [(corners, "2f", "in_corner")])
 
-    def sample(self, source, target, step: int) -> None:
-        """Into `target` (of `samples_size`): the colour texture `source` at every `step`-th
-        row and column from `step // 2`, as numpy's `rgb[s // 2 :: s, s // 2 :: s]`."""
-        self._pass(self.sample_array, source, target, {"step": step})
+    def sample(self, sources: Sequence, target, samples: Atlas, step: int) -> None:
+        """Into `target` (laid out as `samples`, of `samples_size` each): each colour texture
+        of `sources` (a view each) at every `step`-th row and column from `step // 2`, as
+        numpy's `rgb[s // 2 :: s, s // 2 :: s]`."""
+        self._pass(self.sample_array, sources, target, samples, [{"step": step}] * len(sources))
 
     def reduce(
-        self, source, drawn: tuple[int, int], target, size: tuple[int, int], gain: float = 1.0
+        self,
+        sources: Sequence,
+        drawn: Sequence[tuple[int, int]],
+        target,
+        reduced: Atlas,
+        gains: Sequence[float],
     ) -> None:
-        """Into `target` (`size`: width, height): the colour texture `source` (drawn at `drawn`)
-        exposed by `gain` and area-resized, each pixel the mean of the drawn pixels under it."""
-        scale = (drawn[0] / size[0], drawn[1] / size[1])
-        self._pass(self.reduce_array, source, target, {"scale": scale, "gain": gain})
+        """Into `target` (laid out as `reduced`): each colour texture of `sources` (a view each,
+        drawn at its size in `drawn`) exposed by its gain in `gains` and area-resized, each
+        pixel the mean of the drawn pixels under it."""
+        uniforms = []
+        for (width, height), size, gain in zip(drawn, reduced.sizes, gains, strict=True):
+            uniforms.append({"scale": (width / size[0], height / size[1]), "gain": gain})
+        self._pass(self.reduce_array, sources, target, reduced, uniforms)
 
-    def _pass(self, array, source, target, uniforms: dict) -> None:
+    def _pass(self, array, sources: Sequence, target, written: Atlas, uniforms: list[dict]) -> None:
+        """One triangle a view over its rectangle of `target` (laid out as `written`), reading
+        its texture of `sources`: the shaders take the rectangle's corner (`origin`) and see
+        the view's own pixel coordinates."""
         import moderngl
 
         target.use()
         self.context.disable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
-        source.use(location=TEXTURE_UNIT)
-        array.program["source"].value = TEXTURE_UNIT
-        for name, value in uniforms.items():
-            array.program[name].value = value
-        array.render(moderngl.TRIANGLES, vertices=3)
+        program = array.program
+        program["source"].value = TEXTURE_UNIT
+        for k, (source, values) in enumerate(zip(sources, uniforms, strict=True)):
+            source.use(location=TEXTURE_UNIT)
+            self.context.viewport = written.viewport(k)
+            program["origin"].value = written.origins[k]
+            for name, value in values.items():
+                program[name].value = value
+            array.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
         self.sample_array.release()

@@ -53,7 +53,7 @@ from drivee2e_data.sim.gl_posed import (
     PosedModels,
 )
 from drivee2e_data.sim.gl_readback import PendingPixels, PixelReads, Read
-from drivee2e_data.sim.gl_reduce import ViewReduction, reduced_on_cpu, samples_size
+from drivee2e_data.sim.gl_reduce import ViewReduction, atlas, reduced_on_cpu, samples_size
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -531,6 +531,10 @@ class GLRenderer:
         # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
         # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
         self.reduces = not rasterises_on_cpu()
+        info = context.info  # the largest framebuffer side: a layout of views keeps within it
+        self.max_framebuffer_px = int(min(info["GL_MAX_TEXTURE_SIZE"],
+                                          info["GL_MAX_RENDERBUFFER_SIZE"],
+                                          *info["GL_MAX_VIEWPORT_DIMS"]))  # fmt: skip
         self.set_look(look)
 
     def _scene_program(self, variant: tuple[str, ...]):
@@ -1098,8 +1102,9 @@ class GLRenderer:
         s]`), rounded and saturated (`conditions.expose`), before the reduction (OpenCV's
         INTER_AREA; halves rounded up). On a GPU by shaders (`shaders/sample.frag`,
         `reduce.frag`), only the meter's and `size`'s pixels read back, with two waits for the
-        GPU in all: every view is drawn and sampled before any sample is taken, and every one
-        reduced before any is taken. Where GL draws on the CPU, or a view is smaller than
+        GPU in all: every view is drawn before any is sampled, all are sampled into one
+        framebuffer and read at once, then all reduced into one (`gl_reduce.atlas`) and read
+        at once. Where GL draws on the CPU, or a view is smaller than
         `size` (OpenCV's INTER_AREA then enlarges it bilinearly), each view is read whole and
         resized by OpenCV, as the shaders do it (`gl_reduce.reduced_on_cpu`)."""
         colour = (Read(0, 4, "f1"),)
@@ -1113,25 +1118,29 @@ class GLRenderer:
                     bgra = self.readback.read(framebuffer, colour, width, height, queued=False)
                     reduced.append(reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step))
                 return [bgra[..., 2::-1] for bgra in reduced]
-            drawn, samples = [], []
+            # each view drawn into a framebuffer of its own (the scene's rasterisation then
+            # the same as a view drawn alone, to the bit), then all sampled into one and
+            # reduced into one (`gl_reduce.atlas`): a bind and a read a stage
+            sources = []
             for slot, (view, projection, width, height) in enumerate(views):
                 framebuffer, _ = self._draw(view, projection, width, height, False, far_m,
                                             sampled=True, slot=slot)  # fmt: skip
-                drawn.append((framebuffer, (width, height)))
-                if gain_of is not None:
-                    sampled = self._framebuffer(*samples_size((width, height), meter_step),
-                                                ("bgra",))  # fmt: skip
-                    self.reduction.sample(framebuffer.color_attachments[0], sampled, meter_step)
-                    samples.append(self.readback.read(sampled, colour, *sampled.size))
-            gains = [float(gain_of(taken.result()[0][..., 2::-1])) for taken in samples]
-            gains = gains or [1.0] * len(views)
-            target = self._framebuffer(*size, ("bgra",))
-            pending = []
-            for (framebuffer, drawn_size), gain in zip(drawn, gains, strict=True):
-                self.reduction.reduce(framebuffer.color_attachments[0], drawn_size, target, size,
-                                      gain)  # fmt: skip
-                pending.append(self.readback.read(target, colour, *size))
-            return [taken.result()[0][..., 2::-1] for taken in pending]
+                sources.append(framebuffer.color_attachments[0])
+            drawn = [(width, height) for _, _, width, height in views]
+            largest = self.max_framebuffer_px
+            gains = [1.0] * len(views)
+            if gain_of is not None:
+                sampled = atlas([samples_size(size, meter_step) for size in drawn], largest)
+                target = self._framebuffer(*sampled.size, ("bgra",))
+                self.reduction.sample(sources, target, sampled, meter_step)
+                (samples,) = self.readback.read(target, colour, *sampled.size).result()
+                gains = [float(gain_of(sampled.view_of(samples, k)[..., 2::-1]))
+                         for k in range(len(views))]  # fmt: skip
+            reduced = atlas([tuple(size)] * len(views), largest)
+            target = self._framebuffer(*reduced.size, ("bgra",))
+            self.reduction.reduce(sources, drawn, target, reduced, gains)
+            (pixels,) = self.readback.read(target, colour, *reduced.size).result()
+            return [reduced.view_of(pixels, k)[..., 2::-1] for k in range(len(views))]
 
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the
