@@ -12,8 +12,8 @@
 # environment: "NAME:VAR=VALUE,VAR=VALUE" (e.g. the policy server as before,
 # "oldserver:DRIVEE2E_GATHER_MS=2,DRIVEE2E_WORKER_NICENESS=0").
 # TIMELINE=1 runs each evaluation through scripts/dev/start_timeline.py (its summary printed,
-# its raw timeline in $OUT).
-#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [TIMELINE=1]
+# its raw timeline in $OUT; TIMELINE_STEPS=1: every step's too, tabulated over the run).
+#   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [TIMELINE=1 [TIMELINE_STEPS=1]]
 #   [BASE_TAR=out/base_overlay.tar] [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."]
 #   bash scripts/dev/device_closedloop.sh
 set -euo pipefail
@@ -81,7 +81,7 @@ for agent in $AGENTS; do
             [ "$version" = base ] && path=/tmp/proj_base
             timeline=()  # TIMELINE=1: where the command's start went (start_timeline.py)
             [ -z "${TIMELINE:-}" ] || timeline=(python3 "$repo/scripts/dev/start_timeline.py"
-                --log "$OUT/timeline-$agent-w$workers-$name.log" --)
+                --log "$OUT/timeline-$agent-w$workers-$name.log" ${TIMELINE_STEPS:+--steps} --)
             stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" "${timeline[@]}" \
                 python3 -m drivee2e_data.cli evaluate "$DATA" \
                 --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" --workers "$workers" \

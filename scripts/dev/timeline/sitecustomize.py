@@ -1,7 +1,8 @@
 """The timeline probe of `scripts/dev/start_timeline.py`: on PYTHONPATH with TIMELINE_LOG set,
 every Python process of a command (its pools' workers and servers too) appends to that file its
 start, the first import of a few heavy modules, and the entries and exits of the functions in
-`WRAP`, each with its wall time and process id."""
+`WRAP`, each with its wall time and process id; with TIMELINE_STEPS set, of each closed-loop
+step's observing and acting too (`STEP_WRAP`: "Class.method" names)."""
 
 import functools
 import importlib.abc
@@ -25,6 +26,13 @@ WRAP = {
     "drivee2e_data.sim.world": ["World"],
     "drivee2e_data.cli": ["main"],
 }
+STEP_WRAP = {
+    "drivee2e_data.evaluate.episode": ["Episode._observe"],
+    "drivee2e_data.evaluate.policy_server": ["ServedAgent.act"],
+}
+if os.environ.get("TIMELINE_STEPS"):
+    for _module, _names in STEP_WRAP.items():
+        WRAP[_module] = WRAP.get(_module, []) + _names
 
 
 def note(tag):
@@ -33,6 +41,12 @@ def note(tag):
 
 
 def wrap(module, name):
+    if "." in name:  # a method: wrapped on its class
+        owner_name, method = name.split(".")
+        owner = getattr(module, owner_name, None)
+        if owner is not None and hasattr(owner, method):
+            wrap_method(owner, method, name)
+        return
     target = getattr(module, name, None)
     if target is None:
         return
@@ -59,6 +73,20 @@ def wrap(module, name):
             note(f"< {name}")
 
     setattr(module, name, wrapper)
+
+
+def wrap_method(owner, method, tag):
+    target = getattr(owner, method)
+
+    @functools.wraps(target)
+    def wrapper(*a, **k):
+        note(f"> {tag}")
+        try:
+            return target(*a, **k)
+        finally:
+            note(f"< {tag}")
+
+    setattr(owner, method, wrapper)
 
 
 class Finder(importlib.abc.MetaPathFinder):
