@@ -276,6 +276,36 @@ def test_reduced_views_are_the_views_drawn_exposed_and_area_resized(site, on_gpu
         assert np.array_equal(enlarged, expected)
 
 
+@pytest.mark.parametrize("on_gpu", [True, False])
+def test_night_noise_added_by_the_reduction_is_the_noise_averaged_on_the_cpu(site, on_gpu):
+    """A night camera's noise, made at its full size (1600x900) and averaged over each reduced
+    pixel, is added by the reduction itself (on a GPU its shader reads the pool: forced here on
+    llvmpipe): the same bytes as `conditions.with_reduced_noise` on the reduced view, at TCP's
+    input (800x450 drawn, 256x144) and the camera policy's (400x225, 128x72), a view without
+    a start left as drawn, and starts near the pool's end read."""
+    from drivee2e_data.sim.conditions import NOISE_POOL_VALUES, with_reduced_noise
+
+    intersection_map, scenario = site
+    full_size, full_shape = (1600, 900), (900, 1600)
+    last_start = NOISE_POOL_VALUES - 1600 * 900 * 3
+    with World(intersection_map, scenario, renderer="gl") as world:
+        world.gl.reduces = on_gpu
+        eye = _eye_at(world, 20)
+        targets = [eye + 10 * np.array([np.cos(yaw), np.sin(yaw), 0.0]) for yaw in (0, 2, 4)]
+        for drawn, size in (((800, 450), (256, 144)), ((400, 225), (128, 72))):
+            views = [(eye, target, *drawn, 40.0) for target in targets]
+            plain = world.render_reduced(views, size, near_m=0.5)
+            starts = [12345, None, last_start]
+            noisy = world.render_reduced(views, size, near_m=0.5, noise_starts=starts,
+                                         full_size=full_size)  # fmt: skip
+            for rgb, got, start in zip(plain, noisy, starts, strict=True):
+                expected = rgb if start is None else with_reduced_noise(rgb, start, full_shape)
+                assert np.array_equal(got, expected), (drawn, start)
+            assert not np.array_equal(noisy[0], plain[0])
+        with pytest.raises(ValueError, match="full size"):
+            world.render_reduced(views, size, near_m=0.5, noise_starts=starts)
+
+
 def test_showing_the_ego_between_two_draws_of_a_frame_changes_only_the_ego(site):
     """Collection syncs each frame twice (the cameras with the ego hidden, the top view with it
     shown); the actors whose pose did not change keep their placed vertices. The ego's body

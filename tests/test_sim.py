@@ -592,3 +592,33 @@ def test_buildings_stand_farther_out_where_the_roads_leave_no_room_and_the_repor
     monkeypatch.setattr(scenery, "BUILDING_REACHES_M", (5.0,))
     assert scenery.scenery_report(bare).generated_buildings == 0
     assert "no room for buildings" in scenery.scenery_report(bare).line()
+
+
+def test_reduced_effects_with_the_noise_added_already_give_the_same_bytes():
+    """The closed-loop observer's reduced cameras get the night's noise from the renderer
+    (`noise_added`): the rain's streaks then come from the same generator's draws, and the
+    image is the one the effects give with the noise added here; an image whose noise is drawn
+    afresh (no start) cannot have had it added."""
+    from drivee2e_data.scenario import Conditions, TimeOfDay, Weather
+    from drivee2e_data.sim.conditions import (
+        Lighting,
+        night_noise_start,
+        reduced_sensor_effects,
+        with_reduced_noise,
+    )
+
+    when = datetime(2026, 1, 1, 23, tzinfo=timezone.utc)
+    night = Lighting((0, 0, 1), (1, 1, 1), 0.5, 0.5, True)
+    rgb = np.random.default_rng(3).integers(0, 256, (144, 256, 3), dtype=np.uint8)
+    full = (900, 1600)
+    for weather in (Weather.RAIN, Weather.CLEAR):
+        conditions = Conditions(weather, TimeOfDay.NIGHT, when)
+        here = reduced_sensor_effects(rgb, conditions, night, 21, full)
+        noisy = with_reduced_noise(rgb, night_noise_start(21, full), full)
+        there = reduced_sensor_effects(noisy, conditions, night, 21, full, noise_added=True)
+        assert np.array_equal(here, there), weather
+        assert not np.array_equal(here, rgb)
+    huge = (4000, 3000)  # 36 M values: more than half the pool, drawn afresh
+    assert night_noise_start(21, huge) is None
+    with pytest.raises(ValueError, match="afresh"):
+        reduced_sensor_effects(rgb, conditions, night, 21, huge, noise_added=True)

@@ -15,6 +15,7 @@ from drivee2e_data.sim.conditions import (
     exposure,
     meter,
     meter_step,
+    night_noise_start,
     post_process,
     reduced_sensor_effects,
 )
@@ -192,14 +193,17 @@ def render_reduced(
     if len(widths) > 1:
         raise ValueError(f"the cameras drawn reduced together share one width, not {widths}")
     step = meter_step(widths.pop()) if widths else 1
+    seeds = [noise_seed(scenario.scenario_id, frame, camera) for camera in cameras]
+    full_shape = (full_size[1], full_size[0])
+    # the night's noise added by the renderer where it comes from the pool (all but images
+    # larger than half the pool, drawn afresh below)
+    starts = [night_noise_start(seed, full_shape) if lighting.night else None for seed in seeds]
     reduced = world.render_reduced(views, size, lambda samples: exposure(samples, lighting).gain,
-                                   step, NEAR_M, FAR_M)  # fmt: skip
+                                   step, NEAR_M, FAR_M, starts, full_size)  # fmt: skip
     images = {}
-    for camera, rgb in zip(cameras, reduced, strict=True):
-        seed = noise_seed(scenario.scenario_id, frame, camera)
-        full_shape = (full_size[1], full_size[0])
+    for camera, rgb, seed, start in zip(cameras, reduced, seeds, starts, strict=True):
         images[camera.name] = reduced_sensor_effects(
-            rgb, scenario.conditions, lighting, seed, full_shape
+            rgb, scenario.conditions, lighting, seed, full_shape, noise_added=start is not None
         )
     return images
 

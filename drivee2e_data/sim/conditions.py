@@ -405,13 +405,16 @@ def reduced_sensor_effects(
     seed: int,
     full_shape: tuple[int, int],
     gain: float = 1.0,
+    noise_added: bool = False,
 ) -> NDArray[np.uint8]:
     """`_sensor_effects` for an image drawn smaller than the camera's `full_shape` (rows,
     columns), as the full image would show after an area reduction to `rgb`'s size: exposed by
     `gain`, then the same noise and the same streaks (the same draws of `seed`'s generator)
     made at the full size and averaged over each drawn pixel's area, then added and blended as
     there. What the full image clips at 0 or 255 before averaging is not clipped here: a
-    difference below a level."""
+    difference below a level. `noise_added`: the night's noise is in `rgb` already (added by
+    the GL renderer's reduction at `night_noise_start`, `with_reduced_noise`'s arithmetic);
+    only the rain's streaks, from the same generator, are left."""
     import cv2
 
     night = light.night
@@ -421,29 +424,55 @@ def reduced_sensor_effects(
         return rgb
     rng = np.random.default_rng(seed)
     size = (rgb.shape[1], rgb.shape[0])
-    image = contiguous_rgb(rgb).astype(np.float32)
     if night:
-        shape = (*full_shape, 3)
-        start = noise_offset(math.prod(shape), rng)
-        if start is None:
-            noise = _fresh_noise(shape, rng)
-        else:
-            noise = noise_pool()[start : start + math.prod(shape)].reshape(shape)
-        image += cv2.resize(noise.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-        np.clip(image, 0.0, 255.0, out=image)
-        image = np.rint(image)
-    if rain:
-        canvas = _streak_canvas(full_shape)
-        try:
-            _draw_streaks(canvas, rng)
-            weight = cv2.resize(canvas, size, interpolation=cv2.INTER_AREA) * RAIN_OPACITY
-        finally:
-            canvas.fill(0.0)
-        weight = weight[..., None]
-        image = (image * (1.0 - weight) + np.float32(RAIN_RGB) * weight) / np.float32(
-            1.0 + BLEND_EPSILON
-        )
+        start = noise_offset(math.prod((*full_shape, 3)), rng)
+        if noise_added and start is None:
+            raise ValueError(f"a {full_shape} camera draws its noise afresh: none was added")
+        if not noise_added:
+            rgb = with_reduced_noise(rgb, start, full_shape, rng)
+    if not rain:
+        return rgb
+    image = contiguous_rgb(rgb).astype(np.float32)
+    canvas = _streak_canvas(full_shape)
+    try:
+        _draw_streaks(canvas, rng)
+        weight = cv2.resize(canvas, size, interpolation=cv2.INTER_AREA) * RAIN_OPACITY
+    finally:
+        canvas.fill(0.0)
+    weight = weight[..., None]
+    image = (image * (1.0 - weight) + np.float32(RAIN_RGB) * weight) / np.float32(
+        1.0 + BLEND_EPSILON
+    )
     return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def night_noise_start(seed: int, full_shape: tuple[int, int]) -> int | None:
+    """Where the noise of a night camera of `full_shape` (rows, columns) with `seed` starts in
+    the pool (`reduced_sensor_effects`' first draw); None where it is drawn afresh."""
+    return noise_offset(math.prod((*full_shape, 3)), np.random.default_rng(seed))
+
+
+def with_reduced_noise(
+    rgb: NDArray[np.uint8],
+    start: int | None,
+    full_shape: tuple[int, int],
+    rng: np.random.Generator | None = None,
+) -> NDArray[np.uint8]:
+    """`rgb` (H, W, 3) plus the night's noise made at `full_shape` (rows, columns: the pool's
+    window from `start`, or drawn afresh from `rng` where `start` is None) and averaged over
+    each pixel's area (OpenCV's INTER_AREA), clipped and rounded: a new image."""
+    import cv2
+
+    shape = (*full_shape, 3)
+    if start is None:
+        noise = _fresh_noise(shape, rng)
+    else:
+        noise = noise_pool()[start : start + math.prod(shape)].reshape(shape)
+    size = (rgb.shape[1], rgb.shape[0])
+    image = contiguous_rgb(rgb).astype(np.float32)
+    image += cv2.resize(noise.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    np.clip(image, 0.0, 255.0, out=image)
+    return np.rint(image).astype(np.uint8)
 
 
 # The shaders' look per weather and time of day. Colours are linear-ish RGB in [0, 1]; values

@@ -20,8 +20,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-# the drawn view's colour is bound here: after the scene's three textures and the gather's
+# the drawn view's colour is bound here: after the scene's three textures and the gather's;
+# the night's noise pool beside it
 TEXTURE_UNIT = 4
+NOISE_UNIT = 5
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,7 @@ class ViewReduction:
         self.context = context
         self.sample_array = context.vertex_array(sample_program, [(corners, "2f", "in_corner")])
         self.reduce_array = context.vertex_array(reduce_program, [(corners, "2f", "in_corner")])
+        reduce_program["noise_pool"].value = NOISE_UNIT  # read only where a view has noise
 
     def sample(self, sources: Sequence, target, samples: Atlas, step: int) -> None:
         """Into `target` (laid out as `samples`, of `samples_size` each): each colour texture
@@ -86,13 +89,25 @@ class ViewReduction:
         target,
         reduced: Atlas,
         gains: Sequence[float],
+        noise: NightNoise | None = None,
     ) -> None:
         """Into `target` (laid out as `reduced`): each colour texture of `sources` (a view each,
         drawn at its size in `drawn`) exposed by its gain in `gains` and area-resized, each
-        pixel the mean of the drawn pixels under it."""
+        pixel the mean of the drawn pixels under it; with `noise`, each view's night noise
+        added (`conditions.with_reduced_noise`) where it has a start."""
+        starts = noise.starts if noise is not None else (None,) * len(sources)
         uniforms = []
-        for (width, height), size, gain in zip(drawn, reduced.sizes, gains, strict=True):
-            uniforms.append({"scale": (width / size[0], height / size[1]), "gain": gain})
+        for (width, height), size, gain, start in zip(drawn, reduced.sizes, gains, starts,
+                                                      strict=True):  # fmt: skip
+            values = {"scale": (width / size[0], height / size[1]), "gain": gain,
+                      "noise_start": -1 if start is None else start}  # fmt: skip
+            if start is not None:
+                full_width, full_height = noise.full_size
+                values["full_width"] = full_width
+                values["noise_scale"] = (full_width / size[0], full_height / size[1])
+            uniforms.append(values)
+        if noise is not None:
+            noise.pool.use(location=NOISE_UNIT)
         self._pass(self.reduce_array, sources, target, reduced, uniforms)
 
     def _pass(self, array, sources: Sequence, target, written: Atlas, uniforms: list[dict]) -> None:
@@ -117,6 +132,30 @@ class ViewReduction:
     def release(self) -> None:
         self.sample_array.release()
         self.reduce_array.release()
+
+
+@dataclass(frozen=True)
+class NightNoise:
+    """The night's noise of a step's views for the reduction: each view's first value in the
+    pool (`conditions.night_noise_start`; None: none added), the cameras' full size (width,
+    height) and the pool as a GL texture (`noise_pool_texture`)."""
+
+    starts: tuple[int | None, ...]
+    full_size: tuple[int, int]
+    pool: object
+
+
+def noise_pool_texture(context):
+    """`conditions.noise_pool` as an integer texture of `context`, four levels a texel, 2048
+    texels a row (16 MiB, uploaded once per context)."""
+    import moderngl
+
+    from drivee2e_data.sim.conditions import NOISE_POOL_VALUES, noise_pool
+
+    texels = NOISE_POOL_VALUES // 4
+    texture = context.texture((2048, texels // 2048), 4, noise_pool().tobytes(), dtype="i1")
+    texture.filter = (moderngl.NEAREST, moderngl.NEAREST)  # integer textures: nearest only
+    return texture
 
 
 def samples_size(drawn: tuple[int, int], step: int) -> tuple[int, int]:

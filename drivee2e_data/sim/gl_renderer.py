@@ -32,7 +32,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivee2e_data.sim import mesa
-from drivee2e_data.sim.conditions import LampRaster, ShaderLook, headlight_raster, lamp_raster
+from drivee2e_data.sim.conditions import (
+    LampRaster,
+    ShaderLook,
+    headlight_raster,
+    lamp_raster,
+    with_reduced_noise,
+)
 from drivee2e_data.sim.gl_batches import (
     DECALS,
     MATERIAL_GROUPS,
@@ -53,7 +59,14 @@ from drivee2e_data.sim.gl_posed import (
     PosedModels,
 )
 from drivee2e_data.sim.gl_readback import PendingPixels, PixelReads, Read
-from drivee2e_data.sim.gl_reduce import ViewReduction, atlas, reduced_on_cpu, samples_size
+from drivee2e_data.sim.gl_reduce import (
+    NightNoise,
+    ViewReduction,
+    atlas,
+    noise_pool_texture,
+    reduced_on_cpu,
+    samples_size,
+)
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
     POSITION_ONLY,
@@ -228,6 +241,7 @@ def release_context() -> bool:
     _context.cache_clear()
     _program.cache_clear()
     _gather_program.cache_clear()
+    _noise_texture.cache_clear()
     _UNIFORMS.clear()
     _MEMBERS.clear()
     _LOOKS.clear()
@@ -1093,10 +1107,16 @@ class GLRenderer:
         size: tuple[int, int],
         gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
         meter_step: int = 1,
+        noise_starts: Sequence[int | None] | None = None,
+        full_size: tuple[int, int] | None = None,
     ) -> list[NDArray[np.uint8]]:
         """Each of `views` (pybullet's `view` and `projection` matrices, width, height: as
         `queue`'s) drawn with the clip's look, exposed and area-resized to `size` (width,
         height): RGB `(H, W, 3)` each, a view of its BGRA read (`queue`'s colour). With
+        `noise_starts` (one per view; None: none), each view's night noise added after the
+        reduction, made at the camera's `full_size` (width, height) from the pool at its start
+        (`conditions.with_reduced_noise`; by the reduction's shader on a GPU: the same bytes where
+        the scale is a multiple of a quarter, as TCP's and the camera policy's are). With
         `gain_of`, each drawn pixel's levels are multiplied by the gain it returns for the
         view's pixels at every `meter_step`-th row and column (`rgb[s // 2 :: s, s // 2 ::
         s]`), rounded and saturated (`conditions.expose`), before the reduction (OpenCV's
@@ -1111,13 +1131,19 @@ class GLRenderer:
         # a view smaller than `size` is enlarged, by OpenCV (the shader only averages)
         enlarged = any(size[0] > width or size[1] > height for _, _, width, height in views)
         with current(self.context):
+            starts = tuple(noise_starts) if noise_starts is not None else (None,) * len(views)
+            if any(start is not None for start in starts) and full_size is None:
+                raise ValueError("night noise needs the cameras' full size")
             if not self.reduces or enlarged:
                 reduced = []
-                for view, projection, width, height in views:
+                for (view, projection, width, height), start in zip(views, starts, strict=True):
                     framebuffer, _ = self._draw(view, projection, width, height, False, far_m)
                     bgra = self.readback.read(framebuffer, colour, width, height, queued=False)
-                    reduced.append(reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step))
-                return [bgra[..., 2::-1] for bgra in reduced]
+                    rgb = reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step)[..., 2::-1]
+                    if start is not None:
+                        rgb = with_reduced_noise(rgb, start, full_size[::-1])
+                    reduced.append(rgb)
+                return reduced
             # each view drawn into a framebuffer of its own (the scene's rasterisation then
             # the same as a view drawn alone, to the bit), then all sampled into one and
             # reduced into one (`gl_reduce.atlas`): a bind and a read a stage
@@ -1138,7 +1164,10 @@ class GLRenderer:
                          for k in range(len(views))]  # fmt: skip
             reduced = atlas([tuple(size)] * len(views), largest)
             target = self._framebuffer(*reduced.size, ("bgra",))
-            self.reduction.reduce(sources, drawn, target, reduced, gains)
+            noise = None
+            if any(start is not None for start in starts):
+                noise = NightNoise(starts, tuple(full_size), _noise_texture())
+            self.reduction.reduce(sources, drawn, target, reduced, gains, noise)
             (pixels,) = self.readback.read(target, colour, *reduced.size).result()
             return [reduced.view_of(pixels, k)[..., 2::-1] for k in range(len(views))]
 
@@ -1184,6 +1213,13 @@ def _program(
     and llvmpipe takes tens of milliseconds to compile one."""
     return _context().program(vertex_shader=shader_source(vertex, vertex_defines),
                               fragment_shader=shader_source(fragment, defines))  # fmt: skip
+
+
+@functools.cache
+def _noise_texture():
+    """The night's noise pool in this process's context (`gl_reduce.noise_pool_texture`), made
+    when the first night view is reduced and kept for every world after."""
+    return noise_pool_texture(_context())
 
 
 def _wear_texture(context, wear: WearRaster | None):

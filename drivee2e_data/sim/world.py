@@ -489,12 +489,15 @@ class World:
         meter_step: int = 1,
         near_m: float = 0.1,
         far_m: float = 200.0,
+        noise_starts: Sequence[int | None] | None = None,
+        full_size: tuple[int, int] | None = None,
     ) -> list[NDArray[np.uint8]]:
         """RGB `(H, W, 3)` at `size` (width, height) of each of `views` (eye, target, width,
         height, vertical field of view: `render`'s, z up), drawn by the GL renderer with the
         clip's weather and light, each exposed by the gain `gain_of` returns for its pixels at
         every `meter_step`-th row and column and area-resized to `size`, all the views drawn
-        before any is read (`GLRenderer.reduced_views`): the closed-loop observer's cameras."""
+        before any is read, and with `noise_starts` the night's noise of cameras of `full_size`
+        added (`GLRenderer.reduced_views`): the closed-loop observer's cameras."""
         if self.gl is None:
             raise ValueError("views reduced by the renderer (render_reduced) need the GL renderer")
         matrices = [
@@ -503,7 +506,8 @@ class World:
             for eye_m, target_m, width, height, vertical_fov_deg in views
         ]  # fmt: skip
         self.gl.sync(self.state, self.animations, self.scene_lights)
-        return self.gl.reduced_views(matrices, far_m, size, gain_of, meter_step)
+        return self.gl.reduced_views(matrices, far_m, size, gain_of, meter_step, noise_starts,
+                                     full_size)  # fmt: skip
 
     def _matrices(
         self,

@@ -2,18 +2,61 @@
 // A view exposed and reduced on the GPU as the CPU path does it (`conditions.expose`, then
 // OpenCV's INTER_AREA): each drawn pixel's 8-bit levels times `gain`, rounded and saturated,
 // then each output pixel the mean of the drawn pixels under its area, those it covers in part
-// weighted by the part, rounded to the nearest level.
+// weighted by the part, rounded to the nearest level; at night the camera's noise made at its
+// full size and averaged over the same area added, clipped and rounded
+// (`conditions.with_reduced_noise`).
 // Uniforms: source (the drawn view's colour, texel for texel), scale (drawn pixels per output
 // pixel along x and y, 1 or more), gain (the camera's exposure; 1: as drawn), origin (the
-// view's lower left pixel in the framebuffer written).
+// view's lower left pixel in the framebuffer written), noise_start (the view's first noise
+// value in the pool; -1: no noise), noise_pool (the pool's int8 levels, four a texel, 2048
+// texels a row), full_width (the camera's full width in pixels), noise_scale (full-size pixels
+// per output pixel along x and y).
 uniform sampler2D source;
 uniform vec2 scale;
 uniform float gain;
 uniform ivec2 origin;
+uniform int noise_start;
+uniform isampler2D noise_pool;
+uniform int full_width;
+uniform vec2 noise_scale;
 out vec4 colour;
+
+// The mean of the noise under output pixel `pixel` (its column and row), RGB: the window of the
+// pool from noise_start read as rows of full_width pixels of three values, each full-size pixel
+// weighted by the part of it the output pixel covers. The weights are multiples of a quarter
+// where the scale is (TCP's 6.25, the camera policy's 12.5): the sums are then exact.
+vec3 noise_mean(vec2 pixel) {
+    vec2 low = pixel * noise_scale;
+    vec2 high = low + noise_scale;
+    ivec2 first = ivec2(floor(low));
+    ivec2 last = ivec2(ceil(high)) - 1;
+    int count = (last.x - first.x + 1) * 3;  // values a row of the area holds
+    vec3 total = vec3(0.0);
+    for (int row = first.y; row <= last.y; ++row) {
+        float height = min(float(row + 1), high.y) - max(float(row), low.y);
+        int base = noise_start + (row * full_width + first.x) * 3;
+        vec3 row_total = vec3(0.0);
+        for (int texel = base >> 2; texel <= (base + count - 1) >> 2; ++texel) {
+            ivec4 values = texelFetch(noise_pool, ivec2(texel & 2047, texel >> 11), 0);
+            for (int k = 0; k < 4; ++k) {
+                int index = texel * 4 + k - base;  // from the row's first value
+                if (index < 0 || index >= count) {
+                    continue;
+                }
+                int column = first.x + index / 3;
+                float width = min(float(column + 1), high.x) - max(float(column), low.x);
+                row_total[index % 3] += width * float(values[k]);
+            }
+        }
+        total += height * row_total;
+    }
+    return total / (noise_scale.x * noise_scale.y);
+}
+
 void main() {
     // the output pixel's area, in the view's drawn pixels (whole numbers subtracted: exact)
-    vec2 low = floor(gl_FragCoord.xy - vec2(origin)) * scale;
+    vec2 pixel = floor(gl_FragCoord.xy - vec2(origin));
+    vec2 low = pixel * scale;
     vec2 high = low + scale;
     ivec2 first = ivec2(floor(low));
     ivec2 last = ivec2(ceil(high)) - 1;
@@ -28,5 +71,9 @@ void main() {
         }
     }
     // halves rounded up, as OpenCV's area resize by a whole factor rounds them
-    colour = floor(total / (scale.x * scale.y) + 0.5) / 255.0;
+    vec4 level = floor(total / (scale.x * scale.y) + 0.5);
+    if (noise_start >= 0) {  // the colour is blue, green, red: the noise's channels backwards
+        level.rgb = roundEven(clamp(level.rgb + noise_mean(pixel).bgr, 0.0, 255.0));
+    }
+    colour = level / 255.0;
 }
