@@ -122,3 +122,44 @@ def test_at_night_a_headlight_lights_the_road_ahead_of_it_only():
         assert grey[False][row, ahead] == pytest.approx(grey[False][row, behind], abs=1)
     finally:
         p.disconnect(handle)
+
+
+@needs_gl
+def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_raster():
+    """From one state to the next the renderer remakes and writes only the box of the beams
+    before and after: after each state (beams moving, none, back again) the texture holds the
+    lamps' raster and `headlight_raster` of that state's beams, as made whole."""
+    import pybullet as p
+
+    handle = p.connect(p.DIRECT)
+    try:
+        half = 60.0
+        vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0],
+                             [-half, half, 0.0]])  # fmt: skip
+        ground = TwinMesh(1000, "ground", (0.5, 0.5, 0.5, 1.0), Material.MATTE, vertices,
+                          np.array([0, 1, 2, 0, 2, 3]), None)  # fmt: skip
+        lamps = [(-40.0, -40.0, 8.0), (40.0, 40.0, 8.0), (-40.0, 40.0, 8.0)]
+        view = p.computeViewMatrix([0, 0, 100], [0, 0, 0], [0, 1, 0], physicsClientId=handle)
+        projection = p.computeProjectionMatrixFOV(30.0, 1.0, 50.0, 200.0, physicsClientId=handle)
+        look = _night_look(True)
+        renderer = GLRenderer(p, handle, [ground], look, street_lamps=lamps)
+        states = [
+            (((0.0, 0.0, 0.7), (1.0, 0.0, 0.0)),),
+            (((10.0, 5.0, 0.7), (0.0, 1.0, 0.0)), ((-20.0, 0.0, 0.7), (-1.0, 0.0, 0.0))),
+            (),
+            (((30.0, -30.0, 0.7), (0.6, 0.8, 0.0)),),
+        ]
+        try:
+            for state, spots in enumerate(states, start=1):
+                renderer.sync(state, lights=SceneLights(headlights=spots))
+                renderer.draw(view, projection, 64, 64, False, 200.0)
+                raster = renderer._lamp_raster()
+                shape = (*raster.values.shape, 2)
+                held = np.frombuffer(renderer.lamp_texture.read(), np.float32).reshape(shape)
+                assert np.array_equal(held[..., 0], raster.values)
+                assert np.array_equal(held[..., 1], headlight_raster(spots, raster)), state
+                assert (held[..., 1] > 0).any() == bool(spots)
+        finally:
+            renderer.release()
+    finally:
+        p.disconnect(handle)

@@ -628,12 +628,26 @@ def headlight_raster(
     met at a grazing angle, is lit more than a cosine law from one point would give). Remade at
     every state, only over each beam's sector; the raster's edge cells stay dark (the texture
     clamps to them)."""
+    values = np.zeros(like.values.shape, np.float32)
+    add_headlights(values, spots, like, reach_m)
+    return values
+
+
+def add_headlights(
+    values: NDArray[np.float32],
+    spots: Sequence[tuple[Sequence[float], Sequence[float]]],
+    like: LampRaster,
+    reach_m: float = BEAM_REACH_M,
+) -> tuple[int, int, int, int] | None:
+    """`headlight_raster`'s light added into `values` (the raster's shape, float32; a view will
+    do), beam by beam in the same order; the rows and columns it touched (r0, r1, c0, c1: a
+    box holding every beam's sector), or None where no beam reached a cell."""
     rows, columns = like.values.shape
-    values = np.zeros((rows, columns), np.float32)
     x0, y0 = like.origin_xy_m
     cell = like.cell_m
     half_angle = math.acos(HEADLIGHT_CONE_COS[0])
     low, high = HEADLIGHT_CONE_COS
+    box = None
     for position, direction in spots:
         px, py, pz = (float(v) for v in position)
         dx, dy, dz = (float(v) for v in direction)
@@ -650,6 +664,8 @@ def headlight_raster(
         r1 = min(math.ceil((max(ys) - y0) / cell), rows - 1)
         if c0 >= c1 or r0 >= r1:
             continue
+        box = (r0, r1, c0, c1) if box is None else (min(box[0], r0), max(box[1], r1),
+                                                    min(box[2], c0), max(box[3], c1))  # fmt: skip
         gx = (px - (x0 + (np.arange(c0, c1) + 0.5) * cell))[None, :]  # cell to lamp
         gy = (py - (y0 + (np.arange(r0, r1) + 0.5) * cell))[:, None]
         squared = gx * gx + gy * gy + pz * pz
@@ -660,4 +676,4 @@ def headlight_raster(
         reach = np.clip(1.0 - distance / reach_m, 0.0, 1.0)
         facing = np.clip((pz / distance + 0.6) / 1.6, 0.0, 1.0)
         values[r0:r1, c0:c1] += (HEADLIGHT_GAIN * cone * reach * reach * facing).astype(np.float32)
-    return values
+    return box

@@ -24,6 +24,8 @@ from numpy.typing import NDArray
 # the night's noise pool beside it
 TEXTURE_UNIT = 4
 NOISE_UNIT = 5
+NOISE_TEXTURE_WIDTH = 4096  # texels a row of the pool's textures (`reduce.frag`'s shift)
+POOL_TEXTURE = "noise_pool"  # a view's uniform that is its phase's texture, bound to NOISE_UNIT
 
 
 @dataclass(frozen=True)
@@ -100,14 +102,13 @@ class ViewReduction:
         for (width, height), size, gain, start in zip(drawn, reduced.sizes, gains, starts,
                                                       strict=True):  # fmt: skip
             values = {"scale": (width / size[0], height / size[1]), "gain": gain,
-                      "noise_start": -1 if start is None else start}  # fmt: skip
+                      "noise_start": -1 if start is None else start // 3}  # fmt: skip
             if start is not None:
                 full_width, full_height = noise.full_size
                 values["full_width"] = full_width
                 values["noise_scale"] = (full_width / size[0], full_height / size[1])
+                values[POOL_TEXTURE] = noise.pools[start % 3]
             uniforms.append(values)
-        if noise is not None:
-            noise.pool.use(location=NOISE_UNIT)
         self._pass(self.reduce_array, sources, target, reduced, uniforms)
 
     def _pass(self, array, sources: Sequence, target, written: Atlas, uniforms: list[dict]) -> None:
@@ -126,7 +127,10 @@ class ViewReduction:
             self.context.viewport = written.viewport(k)
             program["origin"].value = written.origins[k]
             for name, value in values.items():
-                program[name].value = value
+                if name == POOL_TEXTURE:
+                    value.use(location=NOISE_UNIT)
+                else:
+                    program[name].value = value
             array.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
@@ -138,24 +142,33 @@ class ViewReduction:
 class NightNoise:
     """The night's noise of a step's views for the reduction: each view's first value in the
     pool (`conditions.night_noise_start`; None: none added), the cameras' full size (width,
-    height) and the pool as a GL texture (`noise_pool_texture`)."""
+    height) and the pool as GL textures (`noise_pool_textures`)."""
 
     starts: tuple[int | None, ...]
     full_size: tuple[int, int]
-    pool: object
+    pools: tuple
 
 
-def noise_pool_texture(context):
-    """`conditions.noise_pool` as an integer texture of `context`, four levels a texel, 2048
-    texels a row (16 MiB, uploaded once per context)."""
+def noise_pool_textures(context) -> tuple:
+    """`conditions.noise_pool` as three integer textures of `context`, one per phase p: texel
+    k holds the levels `3k + p` to `3k + p + 2`, so that a window starting at any value reads a
+    full-size pixel's three levels in one fetch (`NOISE_TEXTURE_WIDTH` texels a row; 48 MiB,
+    uploaded once per context)."""
     import moderngl
 
-    from drivee2e_data.sim.conditions import NOISE_POOL_VALUES, noise_pool
+    from drivee2e_data.sim.conditions import noise_pool
 
-    texels = NOISE_POOL_VALUES // 4
-    texture = context.texture((2048, texels // 2048), 4, noise_pool().tobytes(), dtype="i1")
-    texture.filter = (moderngl.NEAREST, moderngl.NEAREST)  # integer textures: nearest only
-    return texture
+    pool = noise_pool()
+    textures = []
+    for phase in range(3):
+        texels = (len(pool) - phase) // 3
+        rows = -(-texels // NOISE_TEXTURE_WIDTH)
+        levels = np.zeros((rows * NOISE_TEXTURE_WIDTH, 3), np.int8)
+        levels[:texels] = pool[phase : phase + 3 * texels].reshape(texels, 3)
+        texture = context.texture((NOISE_TEXTURE_WIDTH, rows), 3, levels.tobytes(), dtype="i1")
+        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)  # integer textures: nearest only
+        textures.append(texture)
+    return tuple(textures)
 
 
 def samples_size(drawn: tuple[int, int], step: int) -> tuple[int, int]:

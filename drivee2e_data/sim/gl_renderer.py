@@ -35,7 +35,7 @@ from drivee2e_data.sim import mesa
 from drivee2e_data.sim.conditions import (
     LampRaster,
     ShaderLook,
-    headlight_raster,
+    add_headlights,
     lamp_raster,
     with_reduced_noise,
 )
@@ -63,7 +63,7 @@ from drivee2e_data.sim.gl_reduce import (
     NightNoise,
     ViewReduction,
     atlas,
-    noise_pool_texture,
+    noise_pool_textures,
     reduced_on_cpu,
     samples_size,
 )
@@ -241,7 +241,7 @@ def release_context() -> bool:
     _context.cache_clear()
     _program.cache_clear()
     _gather_program.cache_clear()
-    _noise_texture.cache_clear()
+    _noise_textures.cache_clear()
     _UNIFORMS.clear()
     _MEMBERS.clear()
     _LOOKS.clear()
@@ -519,6 +519,9 @@ class GLRenderer:
             self.lamp_texture = _float_texture(context, np.zeros((1, 1, 2), np.float32))
         self.lamp_light: LampRaster | None = None
         self.lit: object = None  # the state whose headlights the light texture holds
+        # the light texture's values as written, and the box its beams lit (`_light_texture`)
+        self.light_values: NDArray[np.float32] | None = None
+        self.light_box: tuple[int, int, int, int] | None = None
         self.wear = wear
         self.dynamic_batches = DrawBatches.empty()
         self.dynamic_order = GroupOrder(self.cull)  # the moving bodies' order, kept while it holds
@@ -710,20 +713,36 @@ class GLRenderer:
     def _light_texture(self, look: ShaderLook) -> None:
         """The light on level ground as a two-channel texture, the street lamps' (red) and the
         nearest `MAX_SPOTS` headlights' (green; `conditions.headlight_raster`), made again when
-        the state's lights changed: one texel read in the shader for every lamp and beam."""
+        the state's lights changed: one texel read in the shader for every lamp and beam. Made
+        whole after a new look or new bodies; from one state to the next only the beams' box of
+        both states is made again and written (the lamps stay)."""
         if self.lit == self.synced:
             return
         raster = self._lamp_raster()
         spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
-        values = np.zeros((*raster.values.shape, 2), np.float32)
-        values[..., 0] = raster.values
-        if spots:
-            values[..., 1] = headlight_raster(spots, raster, look.spot_reach_m)
-        if self.lamp_texture.size != values.shape[1::-1]:
-            self.lamp_texture.release()
-            self.lamp_texture = _float_texture(self.context, values)
+        values = self.light_values
+        if self.lit is None or values is None or values.shape[:2] != raster.values.shape:
+            values = np.zeros((*raster.values.shape, 2), np.float32)
+            values[..., 0] = raster.values
+            self.light_box = add_headlights(values[..., 1], spots, raster, look.spot_reach_m)
+            if self.lamp_texture.size != values.shape[1::-1]:
+                self.lamp_texture.release()
+                self.lamp_texture = _float_texture(self.context, values)
+            else:
+                self.lamp_texture.write(values.tobytes())
+            self.light_values = values
         else:
-            self.lamp_texture.write(values.tobytes())
+            old = self.light_box
+            if old is not None:
+                values[old[0] : old[1], old[2] : old[3], 1] = 0.0
+            box = add_headlights(values[..., 1], spots, raster, look.spot_reach_m)
+            self.light_box = box
+            changed = [b for b in (old, box) if b is not None]
+            if changed:
+                r0, r1 = min(b[0] for b in changed), max(b[1] for b in changed)
+                c0, c1 = min(b[2] for b in changed), max(b[3] for b in changed)
+                self.lamp_texture.write(np.ascontiguousarray(values[r0:r1, c0:c1]).tobytes(),
+                                        viewport=(c0, r0, c1 - c0, r1 - r0))  # fmt: skip
         self.lit = self.synced
 
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
@@ -1166,7 +1185,7 @@ class GLRenderer:
             target = self._framebuffer(*reduced.size, ("bgra",))
             noise = None
             if any(start is not None for start in starts):
-                noise = NightNoise(starts, tuple(full_size), _noise_texture())
+                noise = NightNoise(starts, tuple(full_size), _noise_textures())
             self.reduction.reduce(sources, drawn, target, reduced, gains, noise)
             (pixels,) = self.readback.read(target, colour, *reduced.size).result()
             return [reduced.view_of(pixels, k)[..., 2::-1] for k in range(len(views))]
@@ -1216,10 +1235,10 @@ def _program(
 
 
 @functools.cache
-def _noise_texture():
-    """The night's noise pool in this process's context (`gl_reduce.noise_pool_texture`), made
-    when the first night view is reduced and kept for every world after."""
-    return noise_pool_texture(_context())
+def _noise_textures() -> tuple:
+    """The night's noise pool in this process's context (`gl_reduce.noise_pool_textures`),
+    made when the first night view is reduced and kept for every world after."""
+    return noise_pool_textures(_context())
 
 
 def _wear_texture(context, wear: WearRaster | None):

@@ -7,10 +7,11 @@
 // (`conditions.with_reduced_noise`).
 // Uniforms: source (the drawn view's colour, texel for texel), scale (drawn pixels per output
 // pixel along x and y, 1 or more), gain (the camera's exposure; 1: as drawn), origin (the
-// view's lower left pixel in the framebuffer written), noise_start (the view's first noise
-// value in the pool; -1: no noise), noise_pool (the pool's int8 levels, four a texel, 2048
-// texels a row), full_width (the camera's full width in pixels), noise_scale (full-size pixels
-// per output pixel along x and y).
+// view's lower left pixel in the framebuffer written), noise_start (the texel of noise_pool
+// holding the view's first full-size pixel; -1: no noise), noise_pool (the pool's int8 levels
+// three a texel from the view's phase on, `gl_reduce.NOISE_TEXTURE_WIDTH` texels a row),
+// full_width (the camera's full width in pixels), noise_scale (full-size pixels per output
+// pixel along x and y).
 uniform sampler2D source;
 uniform vec2 scale;
 uniform float gain;
@@ -21,32 +22,27 @@ uniform int full_width;
 uniform vec2 noise_scale;
 out vec4 colour;
 
-// The mean of the noise under output pixel `pixel` (its column and row), RGB: the window of the
-// pool from noise_start read as rows of full_width pixels of three values, each full-size pixel
-// weighted by the part of it the output pixel covers. The weights are multiples of a quarter
-// where the scale is (TCP's 6.25, the camera policy's 12.5): the sums are then exact.
+const int NOISE_ROW_SHIFT = 12;  // 4096 texels a row of the pool's textures
+
+// The mean of the noise under output pixel `pixel` (its column and row), RGB: each full-size
+// pixel (one texel of the pool) weighted by the part of it the output pixel covers. The
+// weights are multiples of a quarter where the scale is (TCP's 6.25, the camera policy's
+// 12.5): the sums are then exact.
 vec3 noise_mean(vec2 pixel) {
     vec2 low = pixel * noise_scale;
     vec2 high = low + noise_scale;
     ivec2 first = ivec2(floor(low));
     ivec2 last = ivec2(ceil(high)) - 1;
-    int count = (last.x - first.x + 1) * 3;  // values a row of the area holds
+    int row_mask = (1 << NOISE_ROW_SHIFT) - 1;
     vec3 total = vec3(0.0);
     for (int row = first.y; row <= last.y; ++row) {
         float height = min(float(row + 1), high.y) - max(float(row), low.y);
-        int base = noise_start + (row * full_width + first.x) * 3;
+        int texel = noise_start + row * full_width + first.x;
         vec3 row_total = vec3(0.0);
-        for (int texel = base >> 2; texel <= (base + count - 1) >> 2; ++texel) {
-            ivec4 values = texelFetch(noise_pool, ivec2(texel & 2047, texel >> 11), 0);
-            for (int k = 0; k < 4; ++k) {
-                int index = texel * 4 + k - base;  // from the row's first value
-                if (index < 0 || index >= count) {
-                    continue;
-                }
-                int column = first.x + index / 3;
-                float width = min(float(column + 1), high.x) - max(float(column), low.x);
-                row_total[index % 3] += width * float(values[k]);
-            }
+        for (int column = first.x; column <= last.x; ++column, ++texel) {
+            float width = min(float(column + 1), high.x) - max(float(column), low.x);
+            ivec2 at = ivec2(texel & row_mask, texel >> NOISE_ROW_SHIFT);
+            row_total += width * vec3(texelFetch(noise_pool, at, 0).rgb);
         }
         total += height * row_total;
     }
