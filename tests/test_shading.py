@@ -16,7 +16,7 @@ from drivee2e_data.sim.conditions import (
     headlight_raster,
 )
 from drivee2e_data.sim.gl_batches import MATERIAL_GROUPS, group_defines, in_draw_order
-from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, gl_available
+from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, current, gl_available
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
 from drivee2e_data.sim.twin_plan import TwinMesh
@@ -155,7 +155,9 @@ def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_
                 renderer.draw(view, projection, 64, 64, False, 200.0)
                 raster = renderer._lamp_raster()
                 shape = (*raster.values.shape, 2)
-                held = np.frombuffer(renderer.lamp_texture.read(), np.float32).reshape(shape)
+                with current(renderer.context):  # another test's context may be current
+                    held = renderer.lamp_texture.read()
+                held = np.frombuffer(held, np.float32).reshape(shape)
                 assert np.array_equal(held[..., 0], raster.values)
                 assert np.array_equal(held[..., 1], headlight_raster(spots, raster)), state
                 assert (held[..., 1] > 0).any() == bool(spots)
