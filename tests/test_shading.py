@@ -90,6 +90,14 @@ def _night_look(headlights: bool) -> ShaderLook:
     )  # fmt: skip
 
 
+def _grey_ground(half_m: float = 60.0) -> TwinMesh:
+    """A grey square of ground `2 half_m` wide around the origin."""
+    vertices = np.array([[-half_m, -half_m, 0.0], [half_m, -half_m, 0.0], [half_m, half_m, 0.0],
+                         [-half_m, half_m, 0.0]])  # fmt: skip
+    return TwinMesh(1000, "ground", (0.5, 0.5, 0.5, 1.0), Material.MATTE, vertices,
+                    np.array([0, 1, 2, 0, 2, 3]), None)  # fmt: skip
+
+
 @needs_gl
 def test_at_night_a_headlight_lights_the_road_ahead_of_it_only():
     """A grey ground at night under no street lamp, one car's beam from (0, 0) along +x: seen
@@ -99,11 +107,7 @@ def test_at_night_a_headlight_lights_the_road_ahead_of_it_only():
 
     handle = p.connect(p.DIRECT)
     try:
-        half = 60.0
-        vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0],
-                             [-half, half, 0.0]])  # fmt: skip
-        ground = TwinMesh(1000, "ground", (0.5, 0.5, 0.5, 1.0), Material.MATTE, vertices,
-                          np.array([0, 1, 2, 0, 2, 3]), None)  # fmt: skip
+        ground = _grey_ground()
         lamps = [(-40.0, -40.0, 8.0), (40.0, 40.0, 8.0)]  # far corners: the raster spans the site
         spot = SceneLights(headlights=(((0.0, 0.0, 0.7), (1.0, 0.0, 0.0)),))
         view = p.computeViewMatrix([0, 0, 100], [0, 0, 0], [0, 1, 0], physicsClientId=handle)
@@ -133,11 +137,7 @@ def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_
 
     handle = p.connect(p.DIRECT)
     try:
-        half = 60.0
-        vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0],
-                             [-half, half, 0.0]])  # fmt: skip
-        ground = TwinMesh(1000, "ground", (0.5, 0.5, 0.5, 1.0), Material.MATTE, vertices,
-                          np.array([0, 1, 2, 0, 2, 3]), None)  # fmt: skip
+        ground = _grey_ground()
         lamps = [(-40.0, -40.0, 8.0), (40.0, 40.0, 8.0), (-40.0, 40.0, 8.0)]
         view = p.computeViewMatrix([0, 0, 100], [0, 0, 0], [0, 1, 0], physicsClientId=handle)
         projection = p.computeProjectionMatrixFOV(30.0, 1.0, 50.0, 200.0, physicsClientId=handle)

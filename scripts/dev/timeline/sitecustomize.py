@@ -40,43 +40,8 @@ def note(tag):
         f.write(f"{time.time():.3f} {os.getpid()} {tag}\n")
 
 
-def wrap(module, name):
-    if "." in name:  # a method: wrapped on its class
-        owner_name, method = name.split(".")
-        owner = getattr(module, owner_name, None)
-        if owner is not None and hasattr(owner, method):
-            wrap_method(owner, method, name)
-        return
-    target = getattr(module, name, None)
-    if target is None:
-        return
-    if isinstance(target, type):
-        init = target.__init__
-
-        @functools.wraps(init)
-        def __init__(self, *a, **k):
-            note(f"> {name}")
-            try:
-                return init(self, *a, **k)
-            finally:
-                note(f"< {name}")
-
-        target.__init__ = __init__
-        return
-
-    @functools.wraps(target)
-    def wrapper(*a, **k):
-        note(f"> {name}")
-        try:
-            return target(*a, **k)
-        finally:
-            note(f"< {name}")
-
-    setattr(module, name, wrapper)
-
-
-def wrap_method(owner, method, tag):
-    target = getattr(owner, method)
+def marked(target, tag):
+    """`target` called between the marks "> tag" and "< tag"."""
 
     @functools.wraps(target)
     def wrapper(*a, **k):
@@ -86,7 +51,23 @@ def wrap_method(owner, method, tag):
         finally:
             note(f"< {tag}")
 
-    setattr(owner, method, wrapper)
+    return wrapper
+
+
+def wrap(module, name):
+    if "." in name:  # a method: wrapped on its class
+        owner_name, method = name.split(".")
+        owner = getattr(module, owner_name, None)
+        if owner is not None and hasattr(owner, method):
+            setattr(owner, method, marked(getattr(owner, method), name))
+        return
+    target = getattr(module, name, None)
+    if target is None:
+        return
+    if isinstance(target, type):  # a class: its construction
+        target.__init__ = marked(target.__init__, name)
+        return
+    setattr(module, name, marked(target, name))
 
 
 class Finder(importlib.abc.MetaPathFinder):
