@@ -5,11 +5,13 @@ Their exposure and area resize (`conditions.expose`, then OpenCV's INTER_AREA, a
 and the camera's collection do it) run as two shader passes over the drawn colour texture:
 one samples the exposure meter's pixels (`shaders/sample.frag`), read back for the gain; the
 other exposes each drawn pixel by that gain and averages the pixels under each output pixel
-(`shaders/reduce.frag`). Only the meter's and the output's pixels come back. The views of a step lie side by side in
-one framebuffer at each stage (`atlas`): drawn, sampled and reduced, each stage one
-framebuffer and one read for all of them, since a GPU that draws for many processes pays for
-each framebuffer a step binds. Where GL draws on the CPU, the same arithmetic by OpenCV on the
-whole view read back costs less (`reduced_on_cpu`).
+(`shaders/reduce.frag`). Only the meter's and the output's pixels come back. A step's views,
+each drawn into a framebuffer of its own (drawn at an offset in a shared one, llvmpipe shades
+a few pixels a level apart), are sampled side by side into one framebuffer and reduced into
+one (`atlas`), each read once. At night the reduction adds the camera's noise, averaged from
+the pool over each output pixel's full-size area (`noise_pool_textures`,
+`conditions.with_reduced_noise`). Where GL draws on the CPU, the same arithmetic by OpenCV on
+the whole view read back costs less (`reduced_on_cpu`).
 """
 
 from __future__ import annotations
