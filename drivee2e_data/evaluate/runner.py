@@ -18,6 +18,7 @@ import random
 import resource
 import signal
 import sys
+import tempfile
 import time
 import zlib
 from collections.abc import Callable
@@ -35,6 +36,7 @@ from drivee2e_data import store
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import preload
+from drivee2e_data.evaluate.claims import ClipOrder, claim, clip_order
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
@@ -252,6 +254,20 @@ def evaluate_clip(
     return row
 
 
+def evaluate_claimed(
+    root: Path,
+    claims: str,
+    order: ClipOrder,
+    options: EvaluationOptions,
+    out: Path,
+    agent_factory: AgentFactory | None = None,
+) -> dict[str, Any]:
+    """`evaluate_clip` of the clip this task claims in the folder `claims` (`claims.claim`: the
+    longest of `order` left on the map this worker's world shows, else the longest left)."""
+    shown = _world.intersection_map.map_id if _world is not None else None
+    return evaluate_clip(root, claim(Path(claims), order, shown), options, out, agent_factory)
+
+
 def result_row(
     scenario: Any, result: EpisodeResult, options: EvaluationOptions, removed: int
 ) -> dict[str, Any]:
@@ -388,8 +404,6 @@ def _run_pool(
     # entry point already, or now: its imports run while the policy servers start)
     context = preload.worker_context()
     start_server(context)
-    # longest clips first: the last worker to finish then waits least for the others
-    pending = sorted(pending, key=lambda s: -_frames(root, s))
     counter = context.Value("i", 0)
     gpus = _render_gpus(options)
     servers = _start_servers(options, workers, agent_factory, out, context)
@@ -499,28 +513,33 @@ def _pool_episodes(
     initargs: tuple[Any, ...],
     context: Any,
 ) -> None:
-    with worker_pool(workers, _init_worker, initargs, context) as pool:
-        futures: dict[Future, str] = {
-            pool.submit(evaluate_clip, root, s, options, out, agent_factory): s for s in pending
+    # a task a clip, each claiming its clip as it starts (`claims`): a worker keeps to its
+    # world's map while that map has clips left, longest first
+    order = clip_order(root, pending)
+    reported: set[str] = set()
+    with (
+        tempfile.TemporaryDirectory(prefix="drivee2e_claims_") as claims,
+        worker_pool(workers, _init_worker, initargs, context) as pool,
+    ):
+        remaining: set[Future] = {
+            pool.submit(evaluate_claimed, root, claims, order, options, out, agent_factory)
+            for _ in order
         }
-        remaining = set(futures)
         while remaining:
             done, remaining = wait(remaining, return_when=FIRST_COMPLETED)
             for future in done:
                 try:
                     row = future.result()
                 except BrokenProcessPool:
-                    row = {"scenario_id": futures[future], "status": "error",
-                           "failure": "the worker process died"}  # fmt: skip
+                    continue  # its clip is among those without a row, below
+                reported.add(row["scenario_id"])
                 if on_episode is not None:
                     on_episode(row)
-
-
-def _frames(root: Path, scenario_id: str) -> int:
-    try:
-        return store.read_timeline(root, scenario_id)[1]
-    except DriveE2EError:  # a broken bundle: its episode will say so
-        return 0
+    # a worker that died took its clip and the tasks not yet run with it
+    for scenario_id, _ in order:
+        if scenario_id not in reported and on_episode is not None:
+            on_episode({"scenario_id": scenario_id, "status": "error",
+                        "failure": "the worker process died"})  # fmt: skip
 
 
 def read_rows(out: Path, scenario_ids: list[str]) -> list[dict[str, Any]]:
