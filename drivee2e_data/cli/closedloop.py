@@ -16,7 +16,7 @@ from drivee2e_data.cli.arguments import (
 )
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.evaluate import runner
+from drivee2e_data.evaluate import results, runner
 from drivee2e_data.sim.world import RENDERERS
 
 
@@ -132,7 +132,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
                 bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
 
         rows = runner.evaluate(args.data, clips, options, out, workers, done, registry.build)
-    summary = runner.write_results(out, rows, options)
-    print(runner.markdown_table(summary), end="")
+    summary = results.write_results(out, rows, options)
+    print(results.markdown_table(summary), end="")
     print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")
     return 0

@@ -1,7 +1,7 @@
 """A closed-loop evaluation of one agent over the clips of a split: one episode per clip, in
 worker processes when asked, each episode's result written atomically as it finishes
-(`RUN/episodes/<scenario_id>.json`), so a killed run resumes with the episodes it lacks; then
-`RUN/episodes.parquet`, `RUN/summary.json` and `RUN/table.md`.
+(`RUN/episodes/<scenario_id>.json`), so a killed run resumes with the episodes it lacks; the
+run's tables then come from `results`.
 
 A worker builds its agent once (a `--agent-cmd` child once, again after a failure) and keeps
 the pybullet world of its last map for the next clip on it; agents that ask for no sensors run
@@ -29,17 +29,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from drivee2e_data import store
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import preload
 from drivee2e_data.evaluate.claims import ClipOrder, claim, clip_order
-from drivee2e_data.evaluate.episode import Episode, EpisodeOptions, EpisodeResult
+from drivee2e_data.evaluate.episode import Episode, EpisodeOptions
+from drivee2e_data.evaluate.results import EPISODES_FOLDER, read_rows, result_row
 from drivee2e_data.evaluate.variants import read_variant
-from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
 from drivee2e_data.processes import (
     SPAWN,
     clean_up_when_stopped,
@@ -49,9 +47,7 @@ from drivee2e_data.processes import (
 )
 
 RESULTS_FOLDER = "results"
-EPISODES_FOLDER = "episodes"
 RECORDS_FOLDER = "records"
-COUNTED = tuple(i for i in Infraction if i is not Infraction.OUTSIDE_ROUTE_LANES)
 
 
 @dataclass(frozen=True)
@@ -266,53 +262,6 @@ def evaluate_claimed(
     longest of `order` left on the map this worker's world shows, else the longest left)."""
     shown = _world.intersection_map.map_id if _world is not None else None
     return evaluate_clip(root, claim(Path(claims), order, shown), options, out, agent_factory)
-
-
-def result_row(
-    scenario: Any, result: EpisodeResult, options: EvaluationOptions, removed: int
-) -> dict[str, Any]:
-    score = result.score
-    behavior = scenario.behavior
-    row: dict[str, Any] = {
-        "scenario_id": scenario.scenario_id,
-        "map_id": scenario.map_id,
-        "category": behavior.category.value if behavior else "",
-        "sub_scenario": behavior.sub_scenario.value if behavior else "",
-        "agent": options.agent if not options.agent_cmd else f"remote:{options.agent_cmd}",
-        "variant": options.variant,
-        "reactive": options.reactive,
-        "seed": options.seed,
-        "status": score.status,
-        "success": score.success,
-        "route_completion": score.route_completion,
-        "penalty": score.penalty,
-        "driving_score": score.driving_score,
-        "outside_lanes_percent": score.outside_lanes_percent,
-        "off_road_percent": result.off_road_percent,
-        "driven_m": result.driven_m,
-        "route_length_m": result.route_length_m,
-        "steps": result.steps,
-        "sim_seconds": result.sim_seconds,
-        "episode_seconds": result.wall_seconds,
-        "observe_seconds": result.observe_seconds,
-        "agent_seconds": result.agent_seconds,
-        "removed_agents": removed,
-        "failure": result.failure,
-        "events": json.dumps(
-            [
-                {
-                    "infraction": e.infraction.value,
-                    "frame": e.frame,
-                    "partner_id": e.partner_id,
-                    "detail": e.detail,
-                }
-                for e in score.events
-            ]
-        ),
-    }
-    for infraction in COUNTED:
-        row[infraction.value] = score.count(infraction)
-    return row
 
 
 # -- the whole run ----------------------------------------------------------------------------
@@ -540,89 +489,3 @@ def _pool_episodes(
         if scenario_id not in reported and on_episode is not None:
             on_episode({"scenario_id": scenario_id, "status": "error",
                         "failure": "the worker process died"})  # fmt: skip
-
-
-def read_rows(out: Path, scenario_ids: list[str]) -> list[dict[str, Any]]:
-    rows = []
-    for scenario_id in scenario_ids:
-        path = out / EPISODES_FOLDER / f"{scenario_id}.json"
-        if path.is_file():
-            rows.append(json.loads(path.read_text()))
-    return rows
-
-
-def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """SR, DS, RC, infractions per km, SR per behaviour category, seconds per scene."""
-    scored = [r for r in rows if r.get("status") != "error"]
-    count = len(scored)
-    if count == 0:
-        return {"episodes": 0, "errors": len(rows)}
-    km = sum(r["driven_m"] for r in scored) / 1000.0
-    per_km = {
-        i.value: sum(r[i.value] for r in scored) / max(km, 1e-9)
-        for i in (*PENALTY, Infraction.ROUTE_DEVIATION, Infraction.AGENT_BLOCKED)
-    }
-    categories: dict[str, list[bool]] = {}
-    for r in scored:
-        categories.setdefault(r["category"] or "-", []).append(bool(r["success"]))
-    return {
-        "episodes": count,
-        "errors": len(rows) - count,
-        "success_rate": 100.0 * sum(bool(r["success"]) for r in scored) / count,
-        "driving_score": float(np.mean([r["driving_score"] for r in scored])),
-        "route_completion": float(np.mean([r["route_completion"] for r in scored])),
-        "penalty": float(np.mean([r["penalty"] for r in scored])),
-        "collisions": sum(r[i.value] for r in scored for i in COLLISIONS),
-        "infractions_per_km": per_km,
-        "agent_failures": sum(r[Infraction.AGENT_FAILED.value] for r in scored),
-        "driven_km": km,
-        "seconds_per_scene": float(np.mean([r["wall_seconds"] for r in scored])),
-        "sim_seconds_per_scene": float(np.mean([r["sim_seconds"] for r in scored])),
-        "success_rate_per_category": {
-            name: 100.0 * sum(v) / len(v) for name, v in sorted(categories.items())
-        },
-        "episodes_per_category": {name: len(v) for name, v in sorted(categories.items())},
-    }
-
-
-def write_results(
-    out: Path, rows: list[dict[str, Any]], options: EvaluationOptions
-) -> dict[str, Any]:
-    """episodes.parquet, summary.json and table.md of a finished run."""
-    summary = {"options": options.identity(), **summarize(rows)}
-    if rows:
-        columns = sorted({key for row in rows for key in row})
-        table = pa.Table.from_pylist([{c: row.get(c) for c in columns} for row in rows])
-        path = out / "episodes.parquet"
-        partial = path.with_name(f".{path.name}.partial")
-        pq.write_table(table, partial)
-        partial.replace(path)
-    store.write_bytes_atomic(out / "summary.json", json.dumps(summary, indent=1).encode())
-    store.write_bytes_atomic(out / "table.md", markdown_table(summary).encode())
-    return summary
-
-
-def markdown_table(summary: dict[str, Any]) -> str:
-    options = summary["options"]
-    agent = f"remote `{options['agent_cmd']}`" if options.get("agent_cmd") else options["agent"]
-    traffic = "reactive (IDM)" if options["reactive"] else "log replay"
-    lines = [f"# {agent}, {options['variant']}, {traffic}", ""]
-    if not summary.get("episodes"):
-        return "\n".join([*lines, "no episode scored", ""])
-    per_km = summary["infractions_per_km"]
-    lines += [
-        "| episodes | SR % | DS | RC % | collisions/km | red lights/km | s/scene |",
-        "|---|---|---|---|---|---|---|",
-        f"| {summary['episodes']} | {summary['success_rate']:.1f} | {summary['driving_score']:.2f} "
-        f"| {summary['route_completion']:.1f} "
-        f"| {sum(per_km[i.value] for i in COLLISIONS):.2f} | {per_km['red_light']:.2f} "
-        f"| {summary['seconds_per_scene']:.2f} |",
-        "",
-        "| category | episodes | SR % |",
-        "|---|---|---|",
-    ]
-    for name, rate in summary["success_rate_per_category"].items():
-        lines.append(f"| {name} | {summary['episodes_per_category'][name]} | {rate:.1f} |")
-    lines += ["", "| infraction | per km |", "|---|---|"]
-    lines += [f"| {name} | {value:.2f} |" for name, value in per_km.items()]
-    return "\n".join(lines) + "\n"
