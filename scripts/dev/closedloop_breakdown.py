@@ -5,7 +5,7 @@ what lies outside the episode (the set-up: reading the scene, building the agent
 a worker's first scene pays for its agent and GL context), against the
 simulated time (the reference: real time).
 
-    python scripts/dev/closedloop_breakdown.py RUN [RUN ...]
+    python scripts/dev/closedloop_breakdown.py RUN [RUN ...] [--timeline PNG --data DATA]
 
 RUN is an `evaluate` run folder (its `episodes.parquet`). Runs written before the episodes
 recorded their observe and agent seconds show those as n/a. Where the episodes have their
@@ -14,6 +14,9 @@ seconds, written around the command by scripts/dev/device_fourgpu.sh), a second 
 how the command's time divides: before the first episode started (the process, its workers,
 the policy servers), the episodes' span, and after the last one ended. Where the run's policy
 servers wrote what their batches cost (`policy_server_*.json`), a third table shows it.
+`--timeline PNG` draws each run's episodes over its time, a row a worker (an episode goes to
+the first row free when it starts: the rows are the workers' if no worker waited), coloured by
+the clip's light (night, rain, else day; DATA holds the clips' bundles), its set-up hatched.
 """
 
 from __future__ import annotations
@@ -69,10 +72,72 @@ def phases(run: Path) -> tuple[float, float, float] | None:
     return min(first) - started, max(last) - min(first), ended - max(last)
 
 
+def lanes(rows: list[dict]) -> list[int]:
+    """A row of the drawing for each episode (in `rows`' order): the first whose last episode
+    ended by this one's start, in order of starts."""
+    ends: list[float] = []
+    lane_of = {}
+    for index in sorted(range(len(rows)), key=lambda k: rows[k]["started_at"]):
+        row = rows[index]
+        free = [k for k, end in enumerate(ends) if end <= row["started_at"] + 1e-3]
+        lane = free[0] if free else len(ends)
+        if lane == len(ends):
+            ends.append(0.0)
+        ends[lane] = row["ended_at"]
+        lane_of[index] = lane
+    return [lane_of[k] for k in range(len(rows))]
+
+
+def draw_timeline(runs: list[Path], data: Path, path: Path) -> None:
+    """Each run a panel on one time axis: its episodes on rows (`lanes`), coloured by the clip's
+    light, the set-up (read, agent, world) hatched."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from drivee2e_data import store
+
+    colours = {"night": "#26335c", "rain": "#4f86c6", "day": "#f2c14e"}
+    tables = [pq.read_table(run / "episodes.parquet").to_pylist() for run in runs]
+    longest = max(max(r["ended_at"] for r in t) - min(r["started_at"] for r in t) for t in tables)
+    heights = [max(lanes(t)) + 1 for t in tables]
+    figure, panels = plt.subplots(len(runs), 1, figsize=(11, sum(0.25 * h + 0.9 for h in heights)),
+                                  sharex=True, squeeze=False)  # fmt: skip
+    for run, table, axes in zip(runs, tables, panels[:, 0], strict=True):
+        start = min(r["started_at"] for r in table)
+        for row, lane in zip(table, lanes(table), strict=True):
+            conditions = store.read_scenario(data, row["scenario_id"]).conditions
+            light = ("night" if conditions.time_of_day.value == "night"
+                     else "rain" if conditions.weather.value == "rain" else "day")  # fmt: skip
+            left = row["started_at"] - start
+            axes.barh(lane, row["ended_at"] - row["started_at"], left=left, height=0.8,
+                      color=colours[light], edgecolor="black", linewidth=0.3)  # fmt: skip
+            setup = sum(row.get(k) or 0.0 for k in ("read_seconds", "agent_build_seconds",
+                                                      "world_seconds"))  # fmt: skip
+            axes.barh(lane, setup, left=left, height=0.8, color="none", hatch="////",
+                      edgecolor="black", linewidth=0)  # fmt: skip
+        span = max(r["ended_at"] for r in table) - start
+        axes.set_title(f"{run.name}: the episodes {span:.1f} s", fontsize=10, loc="left")
+        axes.set_ylabel("worker")
+        axes.set_yticks([])
+    panels[-1, 0].set_xlim(0, 1.02 * longest)
+    panels[-1, 0].set_xlabel("seconds since the run's first episode began (hatched: set-up)")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colours.values()]
+    panels[0, 0].legend(handles, list(colours), ncol=3, loc="upper right", fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--timeline", type=Path, default=None, help="draw the episodes here")
+    parser.add_argument("--data", type=Path, default=None, help="the clips' data root")
     args = parser.parse_args()
+    if args.timeline is not None and args.data is None:
+        parser.error("--timeline needs --data (the clips' conditions)")
     print("| run | scenes | steps | wall s | set-up (read, agent, world; the slowest's) "
           "| observe | agent | rest | simulated s | wall / simulated "
           "| ms a step (observe, agent, rest) |")  # fmt: skip
@@ -105,6 +170,9 @@ def main() -> None:
               "| network ms a batch | answering ms a batch |")  # fmt: skip
         print("|---|---|---|---|---|---|---|---|")
         print("\n".join(servers))
+    if args.timeline is not None:
+        draw_timeline(args.runs, args.data, args.timeline)
+        print(f"\ntimeline: {args.timeline}")
 
 
 def server_rows(runs: list[Path]) -> list[str]:
