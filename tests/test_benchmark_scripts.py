@@ -224,3 +224,15 @@ def test_spy_stages_counts_samples_by_stage_and_the_drivers_share(
     raw.write_text("no count here\n")
     with pytest.raises(SystemExit, match=r"worker\.txt line 1: expected"):
         spy.read_samples([raw])
+
+
+def test_closed_loop_timeline_puts_each_episode_on_the_first_row_free_at_its_start() -> None:
+    lanes = _script("closedloop_breakdown").lanes
+    rows = [
+        {"started_at": 0.0, "ended_at": 5.0},
+        {"started_at": 0.1, "ended_at": 3.0},
+        {"started_at": 3.0, "ended_at": 9.0},  # the second row is free again at 3
+        {"started_at": 4.0, "ended_at": 6.0},  # both busy: a third row
+        {"started_at": 6.5, "ended_at": 8.0},  # the first row (free since 5) before the third
+    ]
+    assert lanes(rows) == [0, 1, 1, 2, 0]
