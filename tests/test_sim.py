@@ -622,3 +622,18 @@ def test_reduced_effects_with_the_noise_added_already_give_the_same_bytes():
     assert night_noise_start(21, huge) is None
     with pytest.raises(ValueError, match="afresh"):
         reduced_sensor_effects(rgb, conditions, night, 21, huge, noise_added=True)
+
+
+def test_the_exposures_mean_is_numpys_mean_to_the_bit():
+    """`conditions._mean` (the exposure meter's and its bisection's mean, without numpy's
+    dispatch) is numpy's float32 mean to the bit, at the meter's sample counts and others, over
+    levels from dark to saturated."""
+    from drivee2e_data.sim.conditions import _mean
+
+    rng = np.random.default_rng(5)
+    for count in (1, 2, 7, 127, 128, 129, 2880, 4321):
+        for scale in (1e-3, 1.0, 90.0, 255.0, 1e6):
+            values = (rng.random(count, dtype=np.float32) * np.float32(scale)).astype(np.float32)
+            assert _mean(values) == float(values.mean()), (count, scale)
+            clipped = np.minimum(values * np.float32(1.7), np.float32(255.0))
+            assert _mean(clipped) == float(clipped.mean()), (count, scale)

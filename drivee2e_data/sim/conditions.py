@@ -109,7 +109,7 @@ def exposure(rgb: NDArray[np.uint8], light: Lighting) -> Exposure:
     the views change smoothly, and so does the gain (docs/twins.md measures it frame to
     frame)."""
     grey = meter(rgb)
-    metered = float(grey.mean())
+    metered = _mean(grey)
     low, high = EXPOSURE_BAND
     if metered > high:
         want = EXPOSURE_AIM[1]
@@ -123,14 +123,24 @@ def exposure(rgb: NDArray[np.uint8], light: Lighting) -> Exposure:
         # levels that saturate add less than their share: bisect for the gain that reaches
         # `want` counting them (the mean is monotone in the gain), up to the range's top
         low_gain, high_gain = gain, most
+        scaled = np.empty_like(grey)
         for _ in range(24):
             middle = 0.5 * (low_gain + high_gain)
-            if float(np.minimum(grey * np.float32(middle), 255.0).mean()) < want:
+            np.multiply(grey, np.float32(middle), out=scaled)
+            if _mean(np.minimum(scaled, np.float32(255.0), out=scaled)) < want:
                 low_gain = middle
             else:
                 high_gain = middle
         gain = high_gain
     return Exposure(gain, metered)
+
+
+def _mean(values: NDArray[np.float32]) -> float:
+    """numpy's `values.mean()` of a float32 array, the same float (its pairwise float32 sum
+    over the count, rounded to float32) without `mean`'s dispatch, which was 60% of a camera's
+    exposure (24 means a bisection)."""
+    total = np.add.reduce(values, axis=None)
+    return float(total.dtype.type(total / np.intp(values.size)))
 
 
 def expose(rgb: NDArray[np.uint8], gain: float) -> NDArray[np.uint8]:
