@@ -137,8 +137,8 @@ def exposure(rgb: NDArray[np.uint8], light: Lighting) -> Exposure:
 
 def _mean(values: NDArray[np.float32]) -> float:
     """numpy's `values.mean()` of a float32 array, the same float (its pairwise float32 sum
-    over the count, rounded to float32) without `mean`'s dispatch, which was 60% of a camera's
-    exposure (24 means a bisection)."""
+    over the count, rounded to float32) without `mean`'s dispatch: a bisection takes 24 (a
+    bisecting view 0.31 -> 0.25 ms on 2 cores)."""
     total = np.add.reduce(values, axis=None)
     return float(total.dtype.type(total / np.intp(values.size)))
 
