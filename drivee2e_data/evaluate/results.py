@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -15,10 +15,8 @@ import pyarrow.parquet as pq
 
 from drivee2e_data import store
 from drivee2e_data.evaluate.episode import EpisodeResult
+from drivee2e_data.evaluate.options import EvaluationOptions
 from drivee2e_data.metrics.closedloop import COLLISIONS, PENALTY, Infraction
-
-if TYPE_CHECKING:
-    from drivee2e_data.evaluate.runner import EvaluationOptions
 
 EPISODES_FOLDER = "episodes"
 COUNTED = tuple(i for i in Infraction if i is not Infraction.OUTSIDE_ROUTE_LANES)

@@ -24,7 +24,6 @@ import zlib
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +35,7 @@ from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import preload
 from drivee2e_data.evaluate.claims import ClipOrder, claim, clip_order
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions
+from drivee2e_data.evaluate.options import EvaluationOptions
 from drivee2e_data.evaluate.results import EPISODES_FOLDER, read_rows, result_row
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.processes import (
@@ -48,32 +48,6 @@ from drivee2e_data.processes import (
 
 RESULTS_FOLDER = "results"
 RECORDS_FOLDER = "records"
-
-
-@dataclass(frozen=True)
-class EvaluationOptions:
-    agent: str = "expert"
-    checkpoint: str | None = None
-    agent_cmd: str | None = None
-    reactive: bool = False
-    variant: str = Variant.COMPLETE.value
-    min_speed: bool = False
-    record: str = ""  # "" (none), "mcap" or "mp4": RUN/records/<clip>.<kind>
-    seed: int = 0
-    renderer: str = "auto"
-    step_timeout_s: float = 30.0
-    exact_images: bool = False  # JPEGs at the collection size even for agents that read less
-    # the network of a servable agent on one policy server per GPU (evaluate/policy_server.py):
-    # "auto" where torch sees a GPU and several workers run, "on", "off"
-    policy_server: str = "auto"
-
-    def identity(self) -> dict[str, Any]:
-        """What makes two runs the same run (recording, timeouts and where the network runs do
-        not change scores)."""
-        document = asdict(self)
-        for key in ("record", "renderer", "step_timeout_s", "policy_server"):
-            document.pop(key)
-        return document
 
 
 def run_name(options: EvaluationOptions, split: str) -> str:
