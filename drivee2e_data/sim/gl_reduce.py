@@ -27,7 +27,6 @@ from numpy.typing import NDArray
 TEXTURE_UNIT = 4
 NOISE_UNIT = 5
 NOISE_TEXTURE_WIDTH = 4096  # texels a row of the pool's textures (`reduce.frag`'s shift)
-POOL_TEXTURE = "noise_pool"  # a view's uniform that is its phase's texture, bound to NOISE_UNIT
 
 
 @dataclass(frozen=True)
@@ -100,7 +99,7 @@ class ViewReduction:
         pixel the mean of the drawn pixels under it; with `noise`, each view's night noise
         added (`conditions.with_reduced_noise`) where it has a start."""
         starts = noise.starts if noise is not None else (None,) * len(sources)
-        uniforms = []
+        uniforms, pools = [], []
         for (width, height), size, gain, start in zip(drawn, reduced.sizes, gains, starts,
                                                       strict=True):  # fmt: skip
             values = {"scale": (width / size[0], height / size[1]), "gain": gain,
@@ -109,14 +108,23 @@ class ViewReduction:
                 full_width, full_height = noise.full_size
                 values["full_width"] = full_width
                 values["noise_scale"] = (full_width / size[0], full_height / size[1])
-                values[POOL_TEXTURE] = noise.pools[start % 3]
             uniforms.append(values)
-        self._pass(self.reduce_array, sources, target, reduced, uniforms)
+            pools.append(None if start is None else noise.pools[start % 3])
+        self._pass(self.reduce_array, sources, target, reduced, uniforms, pools)
 
-    def _pass(self, array, sources: Sequence, target, written: Atlas, uniforms: list[dict]) -> None:
+    def _pass(
+        self,
+        array,
+        sources: Sequence,
+        target,
+        written: Atlas,
+        uniforms: list[dict],
+        pools: Sequence | None = None,
+    ) -> None:
         """One triangle a view over its rectangle of `target` (laid out as `written`), reading
-        its texture of `sources`: the shaders take the rectangle's corner (`origin`) and see
-        the view's own pixel coordinates."""
+        its texture of `sources` (and its noise pool's texture of `pools`, where not None):
+        the shaders take the rectangle's corner (`origin`) and see the view's own pixel
+        coordinates."""
         import moderngl
 
         target.use()
@@ -124,15 +132,15 @@ class ViewReduction:
         self.context.disable(moderngl.CULL_FACE)
         program = array.program
         program["source"].value = TEXTURE_UNIT
-        for k, (source, values) in enumerate(zip(sources, uniforms, strict=True)):
+        pools = pools if pools is not None else (None,) * len(sources)
+        for k, (source, values, pool) in enumerate(zip(sources, uniforms, pools, strict=True)):
             source.use(location=TEXTURE_UNIT)
+            if pool is not None:
+                pool.use(location=NOISE_UNIT)
             self.context.viewport = written.viewport(k)
             program["origin"].value = written.origins[k]
             for name, value in values.items():
-                if name == POOL_TEXTURE:
-                    value.use(location=NOISE_UNIT)
-                else:
-                    program[name].value = value
+                program[name].value = value
             array.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
