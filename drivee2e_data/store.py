@@ -165,7 +165,7 @@ def write_scenario(root: Path, scenario: Scenario) -> Path:
 def read_timeline(root: Path, scenario_id: str) -> tuple[int, int]:
     """A bundle's first frame time (ns) and number of frames, from its meta.json alone."""
     meta_file = scenario_dir(root, scenario_id) / "meta.json"
-    return _timeline(_read_json(meta_file), meta_file)
+    return meta_timeline(_read_json(meta_file), meta_file)
 
 
 def read_meta(root: Path, scenario_id: str) -> dict[str, Any]:
@@ -187,7 +187,9 @@ def write_metadata_entry(root: Path, scenario_id: str, key: str, value: Any) -> 
     write_bytes_atomic(meta_file, _json_bytes(meta))
 
 
-def _timeline(meta: dict[str, Any], meta_file: Path) -> tuple[int, int]:
+def meta_timeline(meta: dict[str, Any], meta_file: Path) -> tuple[int, int]:
+    """The first frame time (ns) and number of frames of a bundle's meta.json `meta`, read
+    from `meta_file` (validated: named in errors)."""
     _check_schema(meta_file, meta)
     timeline = _get(meta, "timeline", dict, meta_file)
     t0_ns = _get(timeline, "t0_ns", int, meta_file, "timeline.")
@@ -211,7 +213,7 @@ def read_scenario(root: Path, scenario_id: str, *, require_map: bool = True) -> 
         raise ScenarioFormatError(f"{folder}: no such scenario bundle")
     meta_file = folder / "meta.json"
     meta = _read_json(meta_file)
-    t0_ns, num_frames = _timeline(meta, meta_file)
+    t0_ns, num_frames = meta_timeline(meta, meta_file)
     map_id = _get(meta, "map_id", str, meta_file)
     if require_map and not map_path(root, map_id).is_file():
         raise ScenarioFormatError(

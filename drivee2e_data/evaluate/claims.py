@@ -25,7 +25,8 @@ def clip_order(root: Path, scenario_ids: Sequence[str]) -> ClipOrder:
     for scenario_id in scenario_ids:
         try:
             meta = store.read_meta(root, scenario_id)
-            frames = store.read_timeline(root, scenario_id)[1]
+            meta_file = store.scenario_dir(root, scenario_id) / "meta.json"
+            frames = store.meta_timeline(meta, meta_file)[1]
             rows.append((scenario_id, str(meta.get("map_id", "")), frames))
         except DriveE2EError:
             rows.append((scenario_id, "", 0))
