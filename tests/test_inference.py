@@ -48,3 +48,18 @@ def test_a_replayed_forward_gives_the_eager_plans_bit_for_bit() -> None:
         images, vector = _inputs(batch, seed)
         assert np.array_equal(graphed.plans(images, vector), eager.plans(images, vector))
     assert len(graphed._recordings) == 2
+
+
+@pytest.mark.skipif(torch.cuda.device_count() < 2, reason="needs a second GPU")
+def test_runners_on_two_gpus_record_each_on_its_own_while_the_first_is_current() -> None:
+    torch.cuda.set_device(0)  # as a process that never chose a device has
+    images, vector = _inputs(4, 0)
+    first = _small_policy().to("cuda:0")
+    NetworkRunner(first, "cuda:0", graphs=True).plans(images, vector)  # cuda:0 captured first
+    model = _small_policy().to("cuda:1")
+    eager = NetworkRunner(model, "cuda:1", graphs=False)
+    graphed = NetworkRunner(model, "cuda:1", graphs=True)
+    for seed in range(3):
+        images, vector = _inputs(4, seed)
+        assert np.array_equal(graphed.plans(images, vector), eager.plans(images, vector))
+    assert torch.cuda.current_device() == 0  # the runner left the process's choice as it was

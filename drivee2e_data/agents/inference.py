@@ -52,13 +52,17 @@ class NetworkRunner:
             inputs = [torch.from_numpy(np.ascontiguousarray(a)).to(self.device) for a in arrays]
             return _plans_of(self.model(*inputs)).double().cpu().numpy()
         shape = tuple(a.shape for a in arrays)
-        recording = self._recordings.get(shape)
-        if recording is None:
-            recording = self._recordings[shape] = self._record(arrays)
-        for target, array in zip(recording.inputs, arrays, strict=True):
-            target.copy_(torch.from_numpy(np.ascontiguousarray(array)))
-        recording.graph.replay()
-        return recording.plans.double().cpu().numpy()
+        # recorded and replayed with the model's device current and on its streams: a runner on
+        # cuda:1 in a process where cuda:0 was current failed every capture (found on a 4-GPU
+        # host: each policy server but cuda:0's failed its first batch)
+        with torch.cuda.device(self.device):
+            recording = self._recordings.get(shape)
+            if recording is None:
+                recording = self._recordings[shape] = self._record(arrays)
+            for target, array in zip(recording.inputs, arrays, strict=True):
+                target.copy_(torch.from_numpy(np.ascontiguousarray(array)))
+            recording.graph.replay()
+            return recording.plans.double().cpu().numpy()
 
     def _record(self, arrays: tuple[np.ndarray, ...]) -> _Recording:
         """The model's forward for inputs shaped like `arrays`, recorded after warm-up passes on
@@ -72,7 +76,9 @@ class NetworkRunner:
                 self.model(*inputs)
         current.wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
+        # captured on the side stream, of the model's device: torch's default capture stream is
+        # made once a process, on whichever device was current at the first capture
+        with torch.cuda.graph(graph, stream=side):
             plans = _plans_of(self.model(*inputs))
         return _Recording(graph, inputs, plans)
 

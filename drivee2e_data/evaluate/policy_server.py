@@ -143,6 +143,8 @@ def serve(
     import torch
 
     torch.set_num_threads(max(1, torch.get_num_threads()))
+    if device.startswith("cuda"):  # its GPU current, so nothing it starts lands on cuda:0
+        torch.cuda.set_device(device)
     agent, failure = None, ""
     try:
         agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))

@@ -55,7 +55,7 @@ torch.save(saved, sys.argv[2])
 PY
 fi
 for agent in $AGENTS; do
-    [ -f "$DATA/$agent.pt" ] || stage drivee2e train "$agent" "$DATA" --split all \
+    [ "$agent" = constant-velocity ] || [ -f "$DATA/$agent.pt" ] || stage drivee2e train "$agent" "$DATA" --split all \
         --epochs "$EPOCHS" --out "$DATA/$agent.pt"
 done
 if [ -n "${PROFILE:-}" ]; then  # one worker in one process, profiled (the agent on the GPU)
@@ -73,6 +73,8 @@ for agent in $AGENTS; do
             variables=()
             [[ "$version" == *:* ]] && IFS=, read -r -a variables <<< "${version#*:}"
             run="$DATA/runs/$agent-w$workers-$name"
+            checkpoint=(--checkpoint "$DATA/$agent.pt")  # constant velocity reads none
+            [ "$agent" = constant-velocity ] && checkpoint=()
             rm -rf "$run"
             nvidia-smi --query-gpu=utilization.gpu --format=csv,noheader,nounits -l 1 \
                 > "/tmp/util-$agent-$workers" 2>/dev/null &
@@ -84,7 +86,7 @@ for agent in $AGENTS; do
                 --log "$OUT/timeline-$agent-w$workers-$name.log" ${TIMELINE_STEPS:+--steps} --)
             stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" "${timeline[@]}" \
                 python3 -m drivee2e_data.cli evaluate "$DATA" \
-                --split all --agent "$agent" --checkpoint "$DATA/$agent.pt" --workers "$workers" \
+                --split all --agent "$agent" "${checkpoint[@]}" --workers "$workers" \
                 --out "$run"
             [ -z "${TIMELINE:-}" ] || sed 's/^/  /' /tmp/stage.log
             kill "$logger"
