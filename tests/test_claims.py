@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.evaluate.claims import claim, clip_order
+from drivee2e_data.evaluate.claims import all_claimed, claim, clip_order
 
 ORDER = (("long_a", "A"), ("long_b", "B"), ("mid_a", "A"), ("mid_b", "B"), ("short_a", "A"))
 
@@ -48,3 +48,39 @@ def test_clips_are_ordered_longest_first_with_their_maps(tmp_path):
     assert frames == sorted(frames, reverse=True)
     assert {m for _, m in order[:-1]} == {store.read_meta(tmp_path, s)["map_id"] for s in ids}
     assert order[-1] == ("broken", "")
+
+
+def test_every_clip_is_claimed_only_once_the_last_is(tmp_path):
+    for _ in ORDER:
+        assert not all_claimed(tmp_path, ORDER)
+        claim(tmp_path, ORDER, None)
+    assert all_claimed(tmp_path, ORDER)
+
+
+class _World:
+    def __init__(self, map_id: str) -> None:
+        self.intersection_map = type("Map", (), {"map_id": map_id})()
+        self.closed = False
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_a_worker_gives_its_world_back_once_no_clip_is_left_to_start(tmp_path, monkeypatch):
+    from drivee2e_data.evaluate import runner
+    from drivee2e_data.sim import gl_renderer
+
+    released = []
+    monkeypatch.setattr(gl_renderer, "release_context", lambda: released.append(1) or True)
+    monkeypatch.setattr(runner, "evaluate_clip", lambda root, sid, *a: {"scenario_id": sid})
+    world = _World("A")
+    monkeypatch.setattr(runner, "_world", world)
+    order = ORDER[:2]
+    row = runner.evaluate_claimed(tmp_path, str(tmp_path), order, None, tmp_path)
+    assert row == {"scenario_id": "long_a"}  # its map's clip; one left to start: kept
+    assert runner._world is world and not world.closed and not released
+    assert runner.evaluate_claimed(tmp_path, str(tmp_path), order, None, tmp_path) == {
+        "scenario_id": "long_b"
+    }
+    assert world.closed and runner._world is None and released == [1]
+    assert not runner.give_back_world()  # nothing left to give back

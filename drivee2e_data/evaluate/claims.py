@@ -3,7 +3,8 @@ the longest left on the map its worker's world already shows (a worker keeps its
 next clip on that map: a replay takes a few tenths of a second where a new twin takes one or
 two), else the longest left, so the last worker to finish waits least. A claim is a file made
 exclusively in a folder the run's tasks share: no two tasks take the same clip, whichever
-worker runs them and in whatever order; as many tasks as clips claim every clip once."""
+worker runs them and in whatever order; as many tasks as clips claim every clip once, so once
+every clip is claimed no task is left to start (`all_claimed`)."""
 
 from __future__ import annotations
 
@@ -46,3 +47,9 @@ def claim(folder: Path, order: ClipOrder, map_id: str | None) -> str:
             continue
         return scenario_id
     raise DriveE2EError(f"{folder}: every one of the {len(order)} clips is claimed already")
+
+
+def all_claimed(folder: Path, order: ClipOrder) -> bool:
+    """Whether every clip of `order` has been claimed in `folder`: no task of the run is left
+    to start, so a worker whose episode ends then has none to come."""
+    return len(os.listdir(folder)) >= len(order)

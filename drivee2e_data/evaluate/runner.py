@@ -33,7 +33,7 @@ from drivee2e_data import store
 from drivee2e_data.curation.occlusion import Variant
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate import preload
-from drivee2e_data.evaluate.claims import ClipOrder, claim, clip_order
+from drivee2e_data.evaluate.claims import ClipOrder, all_claimed, claim, clip_order
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions
 from drivee2e_data.evaluate.options import EvaluationOptions
 from drivee2e_data.evaluate.results import EPISODES_FOLDER, read_rows, result_row
@@ -235,7 +235,27 @@ def evaluate_claimed(
     """`evaluate_clip` of the clip this task claims in the folder `claims` (`claims.claim`: the
     longest of `order` left on the map this worker's world shows, else the longest left)."""
     shown = _world.intersection_map.map_id if _world is not None else None
-    return evaluate_clip(root, claim(Path(claims), order, shown), options, out, agent_factory)
+    row = evaluate_clip(root, claim(Path(claims), order, shown), options, out, agent_factory)
+    if all_claimed(Path(claims), order):
+        give_back_world()
+    return row
+
+
+def give_back_world() -> bool:
+    """Close this process's world and give its GL context back to the driver, where a pool
+    worker has no episode left to run: NVIDIA's driver tears contexts down one at a time, so
+    workers that give theirs back as they run out of clips do it while others still drive,
+    rather than all together when the pool shuts down (the collector's workers do the same,
+    `collect.job.release_world`). Returns whether there was a world."""
+    global _world
+    if _world is None:
+        return False
+    from drivee2e_data.sim import gl_renderer
+
+    _world.close()
+    _world = None
+    gl_renderer.release_context()
+    return True
 
 
 # -- the whole run ----------------------------------------------------------------------------

@@ -83,7 +83,7 @@ for agent in $AGENTS; do
             [ "$version" = base ] && path=/tmp/proj_base
             timeline=()  # TIMELINE=1: where the command's start went (start_timeline.py)
             [ -z "${TIMELINE:-}" ] || timeline=(python3 "$repo/scripts/dev/start_timeline.py"
-                --log "$OUT/timeline-$agent-w$workers-$name.log" ${TIMELINE_STEPS:+--steps} --)
+                --log "$OUT/timeline-$agent-w$workers-$name.log" --durations ${TIMELINE_STEPS:+--steps} --)
             stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" "${timeline[@]}" \
                 python3 -m drivee2e_data.cli evaluate "$DATA" \
                 --split all --agent "$agent" "${checkpoint[@]}" --workers "$workers" \

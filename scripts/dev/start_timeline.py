@@ -2,11 +2,12 @@
 (`scripts/dev/timeline/sitecustomize.py`) on PYTHONPATH, then prints, in seconds from the
 command's start, when its first episode began, when its first and last worker had their world
 set up, when each policy server had its agent built, when the last episode ended and the command
-did; with --processes, each process's own marks; with --steps, every closed-loop step's too
+did; with --durations, each wrapped function's calls (count, mean, slowest: a world's set-up by
+its parts); with --processes, each process's own marks; with --steps, every closed-loop step's too
 (its observing and its agent's act, TIMELINE_STEPS), tabulated over the run's wall time: the
 episodes stepping in each window and their steps' mean time, observing and acting.
 
-    python scripts/dev/start_timeline.py [--log F] [--processes] [--steps [--window S]]
+    python scripts/dev/start_timeline.py [--log F] [--durations] [--processes] [--steps [--window S]]
         -- drivee2e evaluate DATA ...
 """
 
@@ -58,6 +59,25 @@ def summary(by_process: dict[int, list[tuple[float, str]]]) -> list[str]:
     return [f"{label:<24} {t:7.2f} s" for label, found in rows for t in found]
 
 
+def durations(by_process: dict[int, list[tuple[float, str]]]) -> list[str]:
+    """Each wrapped function's calls over every process: how many, their mean and slowest
+    seconds (a world's set-up by its parts: the GL context, the twin, the actors, the
+    renderer)."""
+    spans: dict[str, list[float]] = collections.defaultdict(list)
+    for marks in by_process.values():
+        open_at: dict[str, list[float]] = collections.defaultdict(list)
+        for t, tag in marks:
+            if tag.startswith("> "):
+                open_at[tag[2:]].append(t)
+            elif tag.startswith("< ") and open_at[tag[2:]]:
+                spans[tag[2:]].append(t - open_at[tag[2:]].pop())
+    lines = ["| function | calls | mean s | slowest s |", "|---|---|---|---|"]
+    for name, seconds in sorted(spans.items(), key=lambda item: -sum(item[1])):
+        lines.append(f"| {name} | {len(seconds)} | {sum(seconds) / len(seconds):.3f} "
+                     f"| {max(seconds):.3f} |")  # fmt: skip
+    return lines
+
+
 def steps(by_process: dict[int, list[tuple[float, str]]], window_s: float) -> list[str]:
     """Each closed-loop step (from one observing's start to the next in the same episode) in
     windows of `window_s` of the run by its start: the episodes stepping, the steps' mean ms,
@@ -104,6 +124,11 @@ def main() -> int:
     parser.add_argument("--log", type=Path, default=None, help="keep the raw timeline here")
     parser.add_argument("--processes", action="store_true", help="each process's marks too")
     parser.add_argument("--steps", action="store_true", help="every closed-loop step's too")
+    parser.add_argument(
+        "--durations",
+        action="store_true",
+        help="each wrapped function's calls: count, mean and slowest seconds",
+    )
     parser.add_argument("--window", type=float, default=2.0, help="--steps' window, seconds")
     parser.add_argument("command", nargs=argparse.REMAINDER)
     args = parser.parse_args()
@@ -128,6 +153,8 @@ def main() -> int:
         return 1
     by_process = read(log)
     print("\n".join(summary(by_process)))
+    if args.durations:
+        print("\n".join(durations(by_process)))
     if args.steps:
         print("\n".join(steps(by_process, args.window)))
     if args.processes:

@@ -23,7 +23,9 @@ WRAP = {
     "drivee2e_data.evaluate.results": ["write_results"],
     "drivee2e_data.evaluate.policy_server": ["serve", "SlotReader"],
     "drivee2e_data.processes": ["_start_worker"],
-    "drivee2e_data.sim.world": ["World"],
+    "drivee2e_data.sim.world": ["World", "connect", "build_twin", "World.replay"],
+    "drivee2e_data.sim.gl_renderer": ["_context", "GLRenderer"],
+    "drivee2e_data.evaluate.observation": ["SensorObserver"],
     "drivee2e_data.cli": ["main"],
 }
 STEP_WRAP = {
@@ -51,6 +53,9 @@ def marked(target, tag):
         finally:
             note(f"< {tag}")
 
+    for cached in ("cache_info", "cache_clear"):  # a functools.cache'd function's own calls
+        if hasattr(target, cached):
+            setattr(wrapper, cached, getattr(target, cached))
     return wrapper
 
 
