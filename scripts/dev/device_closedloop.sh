@@ -11,11 +11,17 @@
 # GPU's utilisation over each run. VARIANTS names more runs of this version, each with its
 # environment: "NAME:VAR=VALUE,VAR=VALUE" (e.g. the policy server as before,
 # "oldserver:DRIVEE2E_GATHER_MS=2,DRIVEE2E_WORKER_NICENESS=0").
-# TIMELINE=1 runs each evaluation through scripts/dev/start_timeline.py (its summary printed,
-# its raw timeline in $OUT; TIMELINE_STEPS=1: every step's too, tabulated over the run).
+# TIMELINE=1 runs each evaluation through scripts/dev/start_timeline.py (its summary and each
+# wrapped function's calls printed, its raw timeline kept; TIMELINE_STEPS=1: every step's too,
+# tabulated over the run). What a call brings back is one archive, $OUT/closedloop.tar.gz
+# (runs/: each run's episodes and its servers' accounts; the timelines and profiles): a device
+# call returns only a few files. SAVE_INPUTS=1 also writes $OUT/closedloop_inputs.tar (the
+# clips' scenarios, maps and split, and TCP's checkpoint in half precision); carried back as
+# INPUTS=out/closedloop_inputs.tar it replaces synthesis, curation, collection and TCP's
+# training (about 100 s of a cold call; AGENTS="tcp" only, DS then that checkpoint's).
 #   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [TIMELINE=1 [TIMELINE_STEPS=1]]
 #   [BASE_TAR=out/base_overlay.tar] [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."]
-#   bash scripts/dev/device_closedloop.sh
+#   [SAVE_INPUTS=1 | INPUTS=out/closedloop_inputs.tar] bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
 CLIPS="${CLIPS:-40}"
@@ -28,6 +34,12 @@ start=$(date +%s)
 source "$repo/scripts/dev/device_env.sh"  # the environment; `versions`
 echo "environment: $(( $(date +%s) - start )) s; $(nproc) cores; $(nvidia-smi -L | wc -l) GPUs"
 cd /tmp
+if [ -n "${INPUTS:-}" ] && [ ! -f "$DATA/splits/default.csv" ]; then  # SAVE_INPUTS' archive
+    rm -rf /tmp/closedloop_inputs && mkdir -p /tmp/closedloop_inputs "$DATA"
+    tar -xf "$repo/$INPUTS" -C /tmp/closedloop_inputs
+    cp -r /tmp/closedloop_inputs/data/. "$DATA/"
+    HALF_TCP="${HALF_TCP:-/tmp/closedloop_inputs/tcp_half.pt}"
+fi
 stage() { local t; t=$(date +%s); "$@" > /tmp/stage.log 2>&1 || { tail -20 /tmp/stage.log; exit 1; }
           echo "$(( $(date +%s) - t )) s: $*" | cut -c1-110; }
 if [ ! -f "$DATA/splits/default.csv" ]; then
@@ -37,7 +49,8 @@ if [ ! -f "$DATA/splits/default.csv" ]; then
     stage drivee2e split "$DATA" --seed 0
 fi
 if [ -n "${HALF_TCP:-}" ] && [ ! -f "$DATA/tcp.pt" ]; then
-    python3 - "$repo/$HALF_TCP" "$DATA/tcp.pt" <<'PY'
+    [[ "$HALF_TCP" == /* ]] || HALF_TCP="$repo/$HALF_TCP"
+    python3 - "$HALF_TCP" "$DATA/tcp.pt" <<'PY'
 import sys
 
 import torch
@@ -97,10 +110,30 @@ for agent in $AGENTS; do
     done
 done
 python3 "$repo/scripts/dev/closedloop_breakdown.py" "${runs[@]}"
-mkdir -p "$OUT/runs"
+rm -rf /tmp/closedloop_out && mkdir -p /tmp/closedloop_out/runs
 for run in "${runs[@]}"; do
-    cp "$run/episodes.parquet" "$OUT/runs/$(basename "$run").parquet"
+    cp "$run/episodes.parquet" "/tmp/closedloop_out/runs/$(basename "$run").parquet"
     for stats in "$run"/policy_server_*.json; do
-        [ -f "$stats" ] && cp "$stats" "$OUT/runs/$(basename "$run")-$(basename "$stats")"
+        [ -f "$stats" ] && cp "$stats" "/tmp/closedloop_out/runs/$(basename "$run")-$(basename "$stats")"
     done
 done
+for kept in "$OUT"/timeline-*.log "$OUT"/profile-*.txt; do
+    [ -f "$kept" ] && mv "$kept" /tmp/closedloop_out/
+done
+tar -czf "$OUT/closedloop.tar.gz" -C /tmp/closedloop_out .
+if [ -n "${SAVE_INPUTS:-}" ] && [ -f "$DATA/tcp.pt" ]; then
+    rm -rf /tmp/closedloop_save && mkdir -p /tmp/closedloop_save/data
+    cp -r "$DATA/maps" "$DATA/scenarios" "$DATA/splits" /tmp/closedloop_save/data/
+    python3 - "$DATA/tcp.pt" /tmp/closedloop_save/tcp_half.pt <<'PY'
+import sys
+
+import torch
+
+saved = torch.load(sys.argv[1], map_location="cpu", weights_only=True)
+saved["model"] = {k: v.half() if v.is_floating_point() else v for k, v in saved["model"].items()}
+saved.pop("optimiser", None)  # remade where it is read (HALF_TCP)
+torch.save(saved, sys.argv[2])
+PY
+    tar -cf "$OUT/closedloop_inputs.tar" -C /tmp/closedloop_save data tcp_half.pt
+    echo "inputs: $(du -h "$OUT/closedloop_inputs.tar" | cut -f1) (INPUTS=out/closedloop_inputs.tar)"
+fi
