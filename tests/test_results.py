@@ -35,7 +35,7 @@ def test_agent_failures_and_clips_that_could_not_run_are_named_under_the_scores(
     assert summary["agent_failures"] == 2 and summary["errors"] == 1
     table = _table(rows)
     assert (
-        "**Warning: 2 of 3 episodes ended by the agent's failure; 1 clips could not run "
+        "**Warning: 2 of 3 episodes ended by the agent's failure; 1 clip could not run "
         "(not scored)**" in table
     )
     assert table.index("Warning") < table.index("| category |")

@@ -143,7 +143,7 @@ def _unscored_warning(summary: dict[str, Any]) -> list[str]:
     if failed:
         parts.append(f"{failed} of {summary['episodes']} episodes ended by the agent's failure")
     if errors:
-        parts.append(f"{errors} clips could not run (not scored)")
+        parts.append(f"{errors} clip{'s' if errors > 1 else ''} could not run (not scored)")
     return [f"**Warning: {'; '.join(parts)}**: see `failure` in episodes.parquet.", ""]
 
 
