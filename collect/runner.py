@@ -65,6 +65,7 @@ from drivee2e_data.processes import (
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
 from drivee2e_data.sim import egl_devices, gl_renderer, reuse
+from drivee2e_data.sim.egl_devices import contexts_at_once
 from drivee2e_data.sim.twin import mesh_folder
 
 BACKENDS = ("local", "ray")
@@ -428,20 +429,6 @@ _given_back: Any = None  # (count, all given back): `_give_back`'s
 # how long a worker that gave its context back waits for the others at most: they take the
 # run's last frames (a few seconds); past this the pool lost a worker and is stopped anyway
 GIVE_BACK_WAIT_S = 600.0
-
-
-# GL contexts made at once per GPU as a pool starts. NVIDIA's driver makes them through a step
-# that takes one at a time: 32 workers making theirs together all waited about 1.7 s and were
-# ready together (an H100 host's two GPUs; one alone takes 0.2 s), where a few at a time have
-# the first ready in a fraction of that to start on their jobs (docs/benchmarks.md, twentieth
-# session; `scripts/dev/bench_context_exit.py --at-once K`)
-CONTEXTS_AT_ONCE_PER_GPU = 4
-
-
-def contexts_at_once(gpus: tuple[int, ...]) -> int:
-    """How many pool workers make their GL context at the same time (`CONTEXTS_AT_ONCE_PER_GPU`
-    for each of `gpus`, the default device counting as one)."""
-    return CONTEXTS_AT_ONCE_PER_GPU * max(1, len(gpus))
 
 
 def context_at_start(options: CollectOptions) -> bool:

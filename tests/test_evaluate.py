@@ -314,3 +314,55 @@ def test_a_clip_without_an_ego_is_an_error_row_and_the_run_goes_on(
     assert rows[broken.scenario_id]["status"] == "error"
     assert "has no ego" in rows[broken.scenario_id]["failure"]
     assert sum(row["status"] == "completed" for row in rows.values()) == 2
+
+
+def _has_gl_context() -> bool:
+    from drivee2e_data.sim import gl_renderer
+
+    return gl_renderer._context.cache_info().currsize == 1
+
+
+class _Probe:
+    def __init__(self, sensors: tuple[str, ...]) -> None:
+        self.sensors = sensors
+
+
+def test_only_a_served_camera_agent_on_gpus_makes_contexts_a_few_at_a_time() -> None:
+    import multiprocessing
+
+    from drivee2e_data.evaluate import runner
+    from drivee2e_data.sim.egl_devices import CONTEXTS_AT_ONCE_PER_GPU
+
+    context = multiprocessing.get_context("spawn")
+    served = [("handle", "process")]
+    camera = _Probe(("CAM_FRONT",))
+    assert runner._context_slots(context, (), camera, served) is None  # llvmpipe: no GPU
+    assert runner._context_slots(context, (0, 1), camera, []) is None  # its CUDA in the workers
+    assert runner._context_slots(context, (0, 1), _Probe(()), served) is None  # draws nothing
+    assert runner._context_slots(context, (0, 1), None, served) is None  # an agent command
+    slots = runner._context_slots(context, (0, 1), camera, served)
+    taken = 0
+    while slots.acquire(block=False):
+        taken += 1
+    assert taken == 2 * CONTEXTS_AT_ONCE_PER_GPU
+
+
+def test_a_worker_given_context_slots_makes_its_context_with_one_before_any_episode() -> None:
+    from drivee2e_data.evaluate import preload, runner
+    from drivee2e_data.processes import worker_pool
+    from drivee2e_data.sim.gl_renderer import gl_available
+
+    if not gl_available():
+        pytest.skip("no OpenGL context can be made here")
+    context = preload.worker_context()
+    slots = context.Semaphore(0)  # none free yet
+    with worker_pool(1, runner._init_worker, (context.Value("i", 0), (), (), 1, slots),
+                     context) as pool:  # fmt: skip
+        job = pool.submit(_has_gl_context)
+        time.sleep(1.0)
+        assert not job.done()  # the worker waits for a slot before it takes a task
+        slots.release()
+        assert job.result(timeout=60) is True
+    assert slots.acquire(timeout=5)  # given back once made
+    with worker_pool(1, runner._init_worker, (context.Value("i", 0),), context) as pool:
+        assert pool.submit(_has_gl_context).result(timeout=60) is False  # none without slots

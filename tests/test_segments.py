@@ -585,10 +585,11 @@ def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
     """A worker makes its context only with one of the pool's slots (`contexts_at_once`: a few
     per GPU): with none free it waits, and takes no job, until one is."""
     from drivee2e_data.processes import worker_pool
+    from drivee2e_data.sim.egl_devices import CONTEXTS_AT_ONCE_PER_GPU, contexts_at_once
     from drivee2e_data.sim.gl_renderer import gl_available
 
-    assert runner.contexts_at_once(()) == runner.CONTEXTS_AT_ONCE_PER_GPU
-    assert runner.contexts_at_once((0, 1)) == 2 * runner.CONTEXTS_AT_ONCE_PER_GPU
+    assert contexts_at_once(()) == CONTEXTS_AT_ONCE_PER_GPU
+    assert contexts_at_once((0, 1)) == 2 * CONTEXTS_AT_ONCE_PER_GPU
     if not gl_available():
         pytest.skip("no OpenGL context can be made here")
     context = runner.worker_context()

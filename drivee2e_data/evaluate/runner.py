@@ -291,10 +291,12 @@ def _init_worker(
     servers: tuple[Any, ...] = (),
     gpus: tuple[int, ...] = (),
     workers: int = 1,
+    context_slots: Any = None,
 ) -> None:
     """A pool worker's start (one of `workers`): its number (from `counter`), the policy server
     and the EGL GPU it uses (each round robin over its kind: EGL's and CUDA's orders of the
-    GPUs are their own), one thread each."""
+    GPUs are their own), one thread each; with `context_slots` (a semaphore), its GL context
+    made now, while holding one of them (`_context_slots`)."""
     global _worker_number, _server
     if counter is not None:
         with counter.get_lock():
@@ -306,6 +308,11 @@ def _init_worker(
         from drivee2e_data.sim import egl_devices
 
         egl_devices.use_device(egl_devices.device_for_worker(_worker_number, gpus))
+    if context_slots is not None:
+        from drivee2e_data.sim import gl_renderer
+
+        with context_slots:
+            gl_renderer.gl_available()
     # one thread per worker for OpenCV and torch too (llvmpipe's, OpenBLAS's and OpenMP's are
     # set for the workers by the parent, `one_thread_per_worker`): with a worker per core,
     # per-core threads only compete (a lone evaluation process keeps them all)
@@ -329,6 +336,22 @@ def _yield_to_servers(workers: int, servers: int) -> None:
         os.nice(worker_niceness())
 
 
+def _context_slots(
+    context: Any, gpus: tuple[int, ...], probe: Any, servers: list[tuple[Any, Any]]
+) -> Any:
+    """A semaphore of `egl_devices.contexts_at_once` slots, where a pool's workers draw on GPUs
+    (`gpus`) for an agent that reads cameras (`probe`) and is served (its CUDA is the servers',
+    none in the workers): each worker then makes its GL context as it starts, a few at a time,
+    and the first take the first (longest) clips while the others wait, instead of all making
+    theirs together in their first world (40 at once on four H200: 4.5 s each, 16: 2.2 s;
+    docs/benchmarks.md, closed loop). None otherwise: a world makes its context."""
+    if not gpus or not servers or probe is None or not tuple(probe.sensors):
+        return None
+    from drivee2e_data.sim.egl_devices import contexts_at_once
+
+    return context.Semaphore(contexts_at_once(gpus))
+
+
 def _remove_world_files() -> None:
     if _world is not None:
         _world.twin.remove_files()
@@ -349,11 +372,13 @@ def _run_pool(
     start_server(context)
     counter = context.Value("i", 0)
     gpus = _render_gpus(options)
-    servers = _start_servers(options, workers, agent_factory, out, context)
+    probe = _probe(options, agent_factory)
+    servers = _start_servers(options, workers, agent_factory, out, context, probe)
     handles = tuple(handle for handle, _ in servers)
+    slots = _context_slots(context, gpus, probe, servers)
     try:
         _pool_episodes(root, pending, options, out, workers, on_episode, agent_factory,
-                       (counter, handles, gpus, workers), context)  # fmt: skip
+                       (counter, handles, gpus, workers, slots), context)  # fmt: skip
     finally:
         _stop_servers(servers)
 
@@ -381,24 +406,35 @@ def _render_gpus(options: EvaluationOptions) -> tuple[int, ...]:
     return egl_devices.gpu_devices()
 
 
+def _probe(options: EvaluationOptions, agent_factory: AgentFactory | None) -> Any:
+    """The run's agent built without its network (what it reads, whether it can be served);
+    None for an agent command or without a factory."""
+    if options.agent_cmd or agent_factory is None:
+        return None
+    checkpoint = Path(options.checkpoint) if options.checkpoint else None
+    return _without_network(agent_factory, options.agent, checkpoint)
+
+
 def _start_servers(
     options: EvaluationOptions,
     workers: int,
     agent_factory: AgentFactory | None,
     out: Path,
     context: Any = SPAWN,
+    probe: Any = None,
 ) -> list[tuple[Any, Any]]:
     """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
     GPU) for a servable agent: (handle, process) each, each writing what its batches cost into
     `out`/policy_server_<device>.json when it stops; none where the agent runs in its
-    workers. A GPU's server is started by `context` (the pool's), the CPU's spawned."""
+    workers. A GPU's server is started by `context` (the pool's), the CPU's spawned. `probe`:
+    the agent without its network where the caller has built it (`_probe`)."""
     if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
         return []
-    checkpoint = Path(options.checkpoint) if options.checkpoint else None
     from drivee2e_data.evaluate.policy_server import BATCH_ROWS, ServerHandle, servable, serve
     from drivee2e_data.evaluate.slots import slot_folder
 
-    probe = _without_network(agent_factory, options.agent, checkpoint)
+    if probe is None:
+        probe = _probe(options, agent_factory)
     if not servable(probe):
         return []
     import torch

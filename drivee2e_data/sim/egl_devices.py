@@ -80,3 +80,18 @@ def use_device(device: int | None) -> None:
     """Make this process's GL context on `device` (call before it renders; None: the default)."""
     if device is not None:
         os.environ[DEVICE_VARIABLE] = str(device)
+
+
+# GL contexts made at once per GPU as a pool starts (the collector's and the evaluator's).
+# NVIDIA's driver makes them through a step that takes one at a time: 32 workers making theirs
+# together all waited about 1.7 s and were ready together (an H100 host's two GPUs; one alone
+# takes 0.2 s), where a few at a time have the first ready in a fraction of that to start on
+# their jobs (docs/benchmarks.md, twentieth session; `scripts/dev/bench_context_exit.py
+# --at-once K`); 40 evaluation workers on four H200 took 4.5 s each, 16 took 2.2
+CONTEXTS_AT_ONCE_PER_GPU = 4
+
+
+def contexts_at_once(gpus: tuple[int, ...]) -> int:
+    """How many pool workers make their GL context at the same time (`CONTEXTS_AT_ONCE_PER_GPU`
+    for each of `gpus`, the default device counting as one)."""
+    return CONTEXTS_AT_ONCE_PER_GPU * max(1, len(gpus))

@@ -19,7 +19,7 @@ nineteenth session); llvmpipe's are freed with the process.
 For the modes with GL it also prints how long a process took to make its context and be ready
 (median and longest), when the median process was ready and when the last was, counted from the
 first beginning. `--at-once K` lets only K processes make theirs at the same time, as the
-collector's pool does (`runner.contexts_at_once`); by default all do at once.
+collector's and a served evaluation's pools do (`egl_devices.contexts_at_once`); by default all do at once.
 """
 
 from __future__ import annotations
