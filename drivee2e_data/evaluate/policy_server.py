@@ -25,6 +25,9 @@ bits depended on which requests came with it, and on a GPU host the same checkpo
 38.37 and 39.08 in two runs; at the number of workers a server serves, a run with 24 workers
 scored DS 45.643 where 12 and 16 scored 45.638 (H200, 40 clips). At one size for all, a plan
 is a function of its own inputs on a given GPU, whatever the worker count.
+
+A run's servers are started by `start_servers` (one per CUDA device, forked with the workers
+from the pool's server) and stopped by `stop_servers`.
 """
 
 from __future__ import annotations
@@ -40,8 +43,9 @@ import numpy as np
 
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.evaluate.agent import AgentFailure, Observation, Route, Waypoints
-from drivee2e_data.evaluate.slots import InputSlot, SlotReader
-from drivee2e_data.processes import end_with
+from drivee2e_data.evaluate.options import EvaluationOptions
+from drivee2e_data.evaluate.slots import InputSlot, SlotReader, remove_slots, slot_folder
+from drivee2e_data.processes import SPAWN, end_with
 
 # After the first request, how long the server waits for more (milliseconds; the variable
 # GATHER_MS_VARIABLE overrides it). None: requests queued while the network ran make the next
@@ -250,3 +254,63 @@ class ServedAgent:
         if isinstance(answer, str):
             raise AgentFailure(answer)
         return Waypoints(answer)
+
+
+def start_servers(
+    options: EvaluationOptions,
+    workers: int,
+    agent_factory: Any,
+    probe: Any,
+    out: Path,
+    context: Any = SPAWN,
+) -> list[tuple[Any, Any]]:
+    """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
+    GPU) for a servable agent: (handle, process) each, each writing what its batches cost into
+    `out`/policy_server_<device>.json when it stops; none where the agent runs in its
+    workers. `agent_factory` (name, checkpoint) builds the agent in each server; `probe` is
+    the agent built without its network (None: an agent command, never served). A GPU's server
+    is started by `context` (the pool's), the CPU's spawned."""
+    if options.policy_server == "off" or probe is None or not servable(probe):
+        return []
+    import torch
+
+    devices = [f"cuda:{k}" for k in range(torch.cuda.device_count())]
+    if not devices:
+        if options.policy_server != "on":
+            return []
+        devices = ["cpu"]
+    replies = tuple(SPAWN.Queue() for _ in range(workers))
+    # worker k is served by server k mod len(devices)
+    served = -(-workers // len(devices))
+    servers = []
+    slots = slot_folder()
+    for device in devices:
+        handle = ServerHandle(SPAWN.Queue(), replies, slots)
+        # forked from the workers' server, a GPU's server finds torch imported (CUDA is not
+        # started there, so a fork may start it): ready about when the workers are, where
+        # spawned it imported torch after the command had (4 s each on an H200 host); the CPU's
+        # is spawned, with the host's threads rather than the workers' one
+        starter = context if device.startswith("cuda") else SPAWN
+        process = starter.Process(
+            target=serve,
+            args=(options.agent, options.checkpoint, device, handle.requests, replies,
+                  agent_factory, served, BATCH_ROWS,
+                  str(out / f"policy_server_{device.replace(':', '')}.json"), os.getpid()),
+            daemon=True,
+        )  # fmt: skip
+        process.start()
+        servers.append((handle, process))
+    return servers
+
+
+def stop_servers(servers: list[tuple[Any, Any]]) -> None:
+    """Ask each of `start_servers`' servers to stop (each writes its account), wait for them
+    (a server still running after 30 s is terminated) and remove their input slots."""
+    for handle, _ in servers:
+        handle.requests.put(None)
+    for _, process in servers:
+        process.join(timeout=30)
+        if process.is_alive():
+            process.terminate()
+    for folder in {handle.slots for handle, _ in servers}:
+        remove_slots(folder)

@@ -36,10 +36,10 @@ from drivee2e_data.evaluate import preload
 from drivee2e_data.evaluate.claims import ClipOrder, all_claimed, claim, clip_order
 from drivee2e_data.evaluate.episode import Episode, EpisodeOptions
 from drivee2e_data.evaluate.options import EvaluationOptions
+from drivee2e_data.evaluate.policy_server import start_servers, stop_servers
 from drivee2e_data.evaluate.results import EPISODES_FOLDER, read_rows, result_row
 from drivee2e_data.evaluate.variants import read_variant
 from drivee2e_data.processes import (
-    SPAWN,
     clean_up_when_stopped,
     start_server,
     usable_cores,
@@ -373,14 +373,14 @@ def _run_pool(
     counter = context.Value("i", 0)
     gpus = _render_gpus(options)
     probe = _probe(options, agent_factory)
-    servers = _start_servers(options, workers, agent_factory, out, context, probe)
+    servers = start_servers(options, workers, agent_factory, probe, out, context)
     handles = tuple(handle for handle, _ in servers)
     slots = _context_slots(context, gpus, probe, servers)
     try:
         _pool_episodes(root, pending, options, out, workers, on_episode, agent_factory,
                        (counter, handles, gpus, workers, slots), context)  # fmt: skip
     finally:
-        _stop_servers(servers)
+        stop_servers(servers)
 
 
 # an episode of an agent that draws nothing takes well under a second, a worker's start a few:
@@ -413,72 +413,6 @@ def _probe(options: EvaluationOptions, agent_factory: AgentFactory | None) -> An
         return None
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
     return _without_network(agent_factory, options.agent, checkpoint)
-
-
-def _start_servers(
-    options: EvaluationOptions,
-    workers: int,
-    agent_factory: AgentFactory | None,
-    out: Path,
-    context: Any = SPAWN,
-    probe: Any = None,
-) -> list[tuple[Any, Any]]:
-    """One policy server per CUDA device (or one on the CPU with `policy_server="on"` and no
-    GPU) for a servable agent: (handle, process) each, each writing what its batches cost into
-    `out`/policy_server_<device>.json when it stops; none where the agent runs in its
-    workers. A GPU's server is started by `context` (the pool's), the CPU's spawned. `probe`:
-    the agent without its network where the caller has built it (`_probe`)."""
-    if options.policy_server == "off" or options.agent_cmd or agent_factory is None:
-        return []
-    from drivee2e_data.evaluate.policy_server import BATCH_ROWS, ServerHandle, servable, serve
-    from drivee2e_data.evaluate.slots import slot_folder
-
-    if probe is None:
-        probe = _probe(options, agent_factory)
-    if not servable(probe):
-        return []
-    import torch
-
-    devices = [f"cuda:{k}" for k in range(torch.cuda.device_count())]
-    if not devices:
-        if options.policy_server != "on":
-            return []
-        devices = ["cpu"]
-    replies = tuple(SPAWN.Queue() for _ in range(workers))
-    # worker k is served by server k mod len(devices)
-    served = -(-workers // len(devices))
-    servers = []
-    slots = slot_folder()
-    for device in devices:
-        handle = ServerHandle(SPAWN.Queue(), replies, slots)
-        # forked from the workers' server, a GPU's server finds torch imported (CUDA is not
-        # started there, so a fork may start it): ready about when the workers are, where
-        # spawned it imported torch after the command had (4 s each on an H200 host); the CPU's
-        # is spawned, with the host's threads rather than the workers' one
-        starter = context if device.startswith("cuda") else SPAWN
-        process = starter.Process(
-            target=serve,
-            args=(options.agent, options.checkpoint, device, handle.requests, replies,
-                  agent_factory, served, BATCH_ROWS,
-                  str(out / f"policy_server_{device.replace(':', '')}.json"), os.getpid()),
-            daemon=True,
-        )  # fmt: skip
-        process.start()
-        servers.append((handle, process))
-    return servers
-
-
-def _stop_servers(servers: list[tuple[Any, Any]]) -> None:
-    from drivee2e_data.evaluate.slots import remove_slots
-
-    for handle, _ in servers:
-        handle.requests.put(None)
-    for _, process in servers:
-        process.join(timeout=30)
-        if process.is_alive():
-            process.terminate()
-    for folder in {handle.slots for handle, _ in servers}:
-        remove_slots(folder)
 
 
 def _pool_episodes(
