@@ -165,3 +165,12 @@ def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_
             renderer.release()
     finally:
         p.disconnect(handle)
+
+
+def test_a_union_of_boxes_holds_both_and_no_box_is_none():
+    from drivee2e_data.sim.conditions import box_union
+
+    assert box_union(None, None) is None
+    assert box_union((1, 4, 2, 6), None) == (1, 4, 2, 6)
+    assert box_union(None, (1, 4, 2, 6)) == (1, 4, 2, 6)
+    assert box_union((1, 4, 2, 6), (3, 9, 0, 5)) == (1, 9, 0, 6)

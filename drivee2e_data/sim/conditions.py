@@ -643,12 +643,23 @@ def headlight_raster(
     return values
 
 
+Box = tuple[int, int, int, int]  # rows and columns of a raster: r0, r1, c0, c1 (ends excluded)
+
+
+def box_union(first: Box | None, second: Box | None) -> Box | None:
+    """The smallest box holding both (None: no box)."""
+    if first is None or second is None:
+        return first if second is None else second
+    return (min(first[0], second[0]), max(first[1], second[1]),
+            min(first[2], second[2]), max(first[3], second[3]))  # fmt: skip
+
+
 def add_headlights(
     values: NDArray[np.float32],
     spots: Sequence[tuple[Sequence[float], Sequence[float]]],
     like: LampRaster,
     reach_m: float = BEAM_REACH_M,
-) -> tuple[int, int, int, int] | None:
+) -> Box | None:
     """`headlight_raster`'s light added into `values` (the raster's shape, float32; a view will
     do), beam by beam in the same order; the rows and columns it touched (r0, r1, c0, c1: a
     box holding every beam's sector), or None where no beam reached a cell."""
@@ -674,8 +685,7 @@ def add_headlights(
         r1 = min(math.ceil((max(ys) - y0) / cell), rows - 1)
         if c0 >= c1 or r0 >= r1:
             continue
-        box = (r0, r1, c0, c1) if box is None else (min(box[0], r0), max(box[1], r1),
-                                                    min(box[2], c0), max(box[3], c1))  # fmt: skip
+        box = box_union(box, (r0, r1, c0, c1))
         gx = (px - (x0 + (np.arange(c0, c1) + 0.5) * cell))[None, :]  # cell to lamp
         gy = (py - (y0 + (np.arange(r0, r1) + 0.5) * cell))[:, None]
         squared = gx * gx + gy * gy + pz * pz

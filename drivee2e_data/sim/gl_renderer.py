@@ -33,9 +33,11 @@ from numpy.typing import NDArray
 
 from drivee2e_data.sim import mesa
 from drivee2e_data.sim.conditions import (
+    Box,
     LampRaster,
     ShaderLook,
     add_headlights,
+    box_union,
     lamp_raster,
     with_reduced_noise,
 )
@@ -521,7 +523,7 @@ class GLRenderer:
         self.lit: object = None  # the state whose headlights the light texture holds
         # the light texture's values as written, and the box its beams lit (`_light_texture`)
         self.light_values: NDArray[np.float32] | None = None
-        self.light_box: tuple[int, int, int, int] | None = None
+        self.light_box: Box | None = None
         self.wear = wear
         self.dynamic_batches = DrawBatches.empty()
         self.dynamic_order = GroupOrder(self.cull)  # the moving bodies' order, kept while it holds
@@ -735,12 +737,10 @@ class GLRenderer:
             old = self.light_box
             if old is not None:
                 values[old[0] : old[1], old[2] : old[3], 1] = 0.0
-            box = add_headlights(values[..., 1], spots, raster, look.spot_reach_m)
-            self.light_box = box
-            changed = [b for b in (old, box) if b is not None]
-            if changed:
-                r0, r1 = min(b[0] for b in changed), max(b[1] for b in changed)
-                c0, c1 = min(b[2] for b in changed), max(b[3] for b in changed)
+            self.light_box = add_headlights(values[..., 1], spots, raster, look.spot_reach_m)
+            changed = box_union(old, self.light_box)
+            if changed is not None:
+                r0, r1, c0, c1 = changed
                 self.lamp_texture.write(np.ascontiguousarray(values[r0:r1, c0:c1]).tobytes(),
                                         viewport=(c0, r0, c1 - c0, r1 - r0))  # fmt: skip
         self.lit = self.synced
