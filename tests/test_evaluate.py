@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from drivee2e_data import splits, store
 from drivee2e_data.cli import main
 from drivee2e_data.evaluate.runner import EPISODES_FOLDER
+from drivee2e_data.sim.gl_renderer import context_made
 from tests.conftest import copy_clips
 
 SCORE_COLUMNS = ("status", "success", "route_completion", "penalty", "driving_score", "events")
@@ -316,12 +317,6 @@ def test_a_clip_without_an_ego_is_an_error_row_and_the_run_goes_on(
     assert sum(row["status"] == "completed" for row in rows.values()) == 2
 
 
-def _has_gl_context() -> bool:
-    from drivee2e_data.sim import gl_renderer
-
-    return gl_renderer._context.cache_info().currsize == 1
-
-
 class _Probe:
     def __init__(self, sensors: tuple[str, ...]) -> None:
         self.sensors = sensors
@@ -358,11 +353,11 @@ def test_a_worker_given_context_slots_makes_its_context_with_one_before_any_epis
     slots = context.Semaphore(0)  # none free yet
     with worker_pool(1, runner._init_worker, (context.Value("i", 0), (), (), 1, slots),
                      context) as pool:  # fmt: skip
-        job = pool.submit(_has_gl_context)
+        job = pool.submit(context_made)
         time.sleep(1.0)
         assert not job.done()  # the worker waits for a slot before it takes a task
         slots.release()
         assert job.result(timeout=60) is True
     assert slots.acquire(timeout=5)  # given back once made
     with worker_pool(1, runner._init_worker, (context.Value("i", 0),), context) as pool:
-        assert pool.submit(_has_gl_context).result(timeout=60) is False  # none without slots
+        assert pool.submit(context_made).result(timeout=60) is False  # none without slots

@@ -23,6 +23,7 @@ from drivee2e_data.collect.runner import collect, merge_threads
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
+from drivee2e_data.sim.gl_renderer import context_made
 
 # what the CLI makes of SMALL_COLLECT on this machine (depth LiDAR where GL works)
 SMALL = CollectOptions(image_size=(160, 90), jpeg_quality=80)
@@ -554,12 +555,6 @@ def test_log_writing_threads_grow_with_the_pool_past_sixteen_workers():
     assert [merge_threads(n) for n in (1, 2, 16, 23, 24, 32, 64, 128)] == [2, 2, 2, 2, 3, 4, 8, 8]
 
 
-def _has_gl_context() -> bool:
-    from drivee2e_data.sim import gl_renderer
-
-    return gl_renderer._context.cache_info().currsize == 1
-
-
 def test_pool_workers_make_their_gl_context_as_they_start(tmp_path):
     """Where worlds draw with the GL renderer a worker's context is made by its initialiser,
     before any job; not where the cameras are finished with CUDA (which must start first), nor
@@ -578,7 +573,7 @@ def test_pool_workers_make_their_gl_context_as_they_start(tmp_path):
         initargs = (context.Queue(), context.Queue(), context.Queue(), context.Value("i", 0), (),
                     runner._Claims(1, context).shared, str(tmp_path), make_context)  # fmt: skip
         with worker_pool(1, runner._init_worker, initargs, context) as pool:
-            assert pool.submit(_has_gl_context).result() is make_context
+            assert pool.submit(context_made).result() is make_context
 
 
 def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
@@ -597,7 +592,7 @@ def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
     initargs = (context.Queue(), context.Queue(), context.Queue(), context.Value("i", 0), (),
                 runner._Claims(1, context).shared, str(tmp_path), True, slots)  # fmt: skip
     with worker_pool(1, runner._init_worker, initargs, context) as pool:
-        job = pool.submit(_has_gl_context)
+        job = pool.submit(context_made)
         time.sleep(1.0)
         assert not job.done()  # the worker waits for a slot
         slots.release()
@@ -621,7 +616,7 @@ def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
                 runner._Claims(1, context).shared, str(tmp_path), True, None,
                 given_back)  # fmt: skip
     with worker_pool(2, runner._init_worker, initargs, context) as pool:
-        assert all(pool.submit(_has_gl_context).result() for _ in range(2))
+        assert all(pool.submit(context_made).result() for _ in range(2))
         busy = pool.submit(time.sleep, 6.0)
         time.sleep(0.5)  # the other worker idle
         first, second = (pool.submit(runner._give_back, 2) for _ in range(2))
@@ -633,7 +628,7 @@ def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
         busy.result(timeout=60)
         assert first.result(timeout=60) == [] and second.result(timeout=60) == []
         assert given_back[0].value == 2 and given_back[1].is_set()
-        assert not any(pool.submit(_has_gl_context).result() for _ in range(4))
+        assert not any(pool.submit(context_made).result() for _ in range(4))
 
 
 def test_a_context_given_back_is_made_again_and_draws_the_same(tmp_path):

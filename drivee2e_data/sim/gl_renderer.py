@@ -229,6 +229,12 @@ def gl_available() -> bool:
     return _context() is not None
 
 
+def context_made() -> bool:
+    """Whether this process holds the answer of `_context` (a context, or None where none can
+    be made) since it last released one (`release_context`)."""
+    return _context.cache_info().currsize > 0
+
+
 def release_context() -> bool:
     """Give this process's GL context back to the driver now rather than at the process's exit:
     made current nowhere, destroyed, and its EGL display terminated, so that the driver frees
@@ -237,7 +243,7 @@ def release_context() -> bool:
     world with renderer "egl") closed: the display they may share is terminated. Its compiled
     programs and the uniforms last set are forgotten; the next `_context()` makes a new one.
     Returns whether there was one to release."""
-    if not _context.cache_info().currsize:
+    if not context_made():
         return False
     context = _context()
     _context.cache_clear()
