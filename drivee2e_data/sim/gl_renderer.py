@@ -542,6 +542,9 @@ class GLRenderer:
         # only the ego moves between the two, and stationary actors keep their vertices
         self.placed: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
         self.synced: object = None
+        # what the dynamic buffer was last written from (`sync`): its parts' ids, and the parts
+        self.dynamic_identity: tuple = ()
+        self.dynamic_parts: tuple = ()
         self.shadowed: object = None
         self.lights = SceneLights()
         self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
@@ -771,6 +774,7 @@ class GLRenderer:
         self.placers = {}
         self.placed = {}
         self.synced = None
+        self.dynamic_identity, self.dynamic_parts = (), ()
         self.shadowed = None
         self.lit = None
 
@@ -805,32 +809,46 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        if self.one_program:
-            vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
-        else:
-            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
         lights = lights or SceneLights()
         casters = [self._placed(body, position, orientation, animation)
                    for body, position, orientation, animation in lights.casters
                    if body in self.models]  # fmt: skip
+        # each part is the very array of the last sync while its body stood still with the same
+        # colours (`_Body.vertices`, `_placed` keep them): then so are the ordered vertices,
+        # their batches and the buffer's bytes (where the GPU poses the models, the parts are
+        # the signals' lamps, which change a few times a clip)
+        identity = (tuple(map(id, parts[1:])), tuple(map(id, casters)))  # [0]: an empty start
+        with current(self.context):
+            if identity != self.dynamic_identity:
+                self._write_dynamic(parts, casters)
+                # held, so that no new array takes one of their ids
+                self.dynamic_identity = identity
+                self.dynamic_parts = (parts, casters)
+            if self.posed is not None:
+                self.posed.pose(placements)
+        self.lights = lights
+        self.synced = state
+
+    def _write_dynamic(self, parts: list[NDArray], casters: list[NDArray]) -> None:
+        """The moving bodies' vertices (`parts`) in draw order, then the shadow casters', into
+        the dynamic buffer; their batches."""
+        if self.one_program:
+            vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
+        else:
+            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
         if casters:  # after the drawn vertices, in a batch only the shadow pass draws
             shadow_only = np.concatenate(casters)
             self.dynamic_batches = self.dynamic_batches.then(
                 SHADOW_ONLY, len(vertices), len(shadow_only), shadow_only
             )
             vertices = np.concatenate([vertices, shadow_only])
-        with current(self.context):
-            if vertices.nbytes > self.dynamic_buffer.size:
-                for key in [k for k in self.arrays if k[0] == "dynamic"]:
-                    self.arrays.pop(key).release()
-                self.dynamic_buffer.release()
-                self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
-            if vertices.nbytes:
-                self.dynamic_buffer.write(vertices)  # its bytes as they lie: no copy
-            if self.posed is not None:
-                self.posed.pose(placements)
-        self.lights = lights
-        self.synced = state
+        if vertices.nbytes > self.dynamic_buffer.size:
+            for key in [k for k in self.arrays if k[0] == "dynamic"]:
+                self.arrays.pop(key).release()
+            self.dynamic_buffer.release()
+            self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
+        if vertices.nbytes:
+            self.dynamic_buffer.write(vertices)  # its bytes as they lie: no copy
 
     def _placed(self, body: int, position, orientation, animation: Animation) -> NDArray:
         """The model of `body` posed by `animation` at (position, orientation), in the world

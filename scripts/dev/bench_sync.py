@@ -1,5 +1,5 @@
 """What posing, ordering and uploading a frame's moving bodies costs (`GLRenderer.sync`), as a
-GPU host's renderer does it (the scene drawn whole: no cells, `cull` off), measured on any host:
+GPU host's renderer does it (the scene cut into cells, one scene program), measured on any host:
 the CPU's share of a closed-loop or collection step that no GPU takes over.
 
     python scripts/dev/bench_sync.py DATA CLIP [--frames 60] [--pose-on gpu|cpu]
@@ -32,7 +32,8 @@ def main() -> None:
     args = parser.parse_args()
     scenario = store.read_scenario(args.data, args.clip)
     with World(store.read_map(args.data, scenario.map_id), scenario, "gl") as world:
-        world.gl.cull = False  # as on a GPU
+        world.gl.cull = True  # as on a GPU
+        world.gl.one_program = True
         world.gl.poses_on_gpu = args.pose_on == "gpu"
         world.gl.forget_bodies()
         world.gl.set_models(world.body_models())
