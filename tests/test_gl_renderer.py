@@ -99,33 +99,35 @@ def test_a_lamp_shines_its_colour_with_the_sun_behind_it(box_scene):
     assert len(cube_pixels) and np.abs(cube_pixels[:, 0].astype(int) - 128).max() <= 1
 
 
-def test_still_lamps_are_not_written_again_until_one_changes_colour(box_scene, monkeypatch):
-    """A new state whose moving bodies all stand as before, in the same colours, leaves the
-    moving bodies' buffer as it is (no order, no upload); a lamp turned green is drawn green."""
+def test_still_lamps_are_not_ordered_or_written_again_until_one_changes_colour(box_scene):
+    """A new state whose moving bodies all stand as before, in the same colours, keeps the
+    moving bodies' vertices in draw order as they were (no order, no upload); a lamp turned
+    green is drawn green; a moved body is ordered again."""
     p, client, cube, _ = box_scene
     shape = p.createVisualShape(p.GEOM_SPHERE, radius=0.5, rgbaColor=[1, 0, 0, 1],
                                 physicsClientId=client)  # fmt: skip
     lamp = p.createMultiBody(0, -1, shape, [10, 0, 1], physicsClientId=client)
     p.resetBasePositionAndOrientation(cube, [20, 3, 1], [0, 0, 0, 1], physicsClientId=client)
     renderer = GLRenderer(p, client, [], NOON, lamps=[lamp])
-    writes = []
-    write = renderer._write_dynamic
-    monkeypatch.setattr(renderer, "_write_dynamic", lambda *a: (writes.append(1), write(*a)))
     view = p.computeViewMatrix([0, 0, 1], [1, 0, 1], [0, 0, 1], physicsClientId=client)
     projection = p.computeProjectionMatrixFOV(40.0, 1.0, NEAR_M, FAR_M, physicsClientId=client)
     renderer.sync(1)
+    first = renderer.dynamic_ordered
     red = renderer.draw(view, projection, 64, 64, True, FAR_M)
     renderer.sync(2)  # nothing moved or changed colour
-    assert len(writes) == 1
+    assert renderer.dynamic_ordered is first
     again = renderer.draw(view, projection, 64, 64, True, FAR_M)
     assert all(np.array_equal(a, b) for a, b in zip(red, again, strict=True))
     p.changeVisualShape(lamp, -1, rgbaColor=[0, 1, 0, 1], physicsClientId=client)
     renderer.sync(3)
+    green = renderer.dynamic_ordered
     rgb, _, body = renderer.draw(view, projection, 64, 64, True, FAR_M)
-    assert len(writes) == 2 and body[32, 32] == lamp and rgb[32, 32].tolist() == [0, 255, 0]
+    assert green is not first and body[32, 32] == lamp and rgb[32, 32].tolist() == [0, 255, 0]
     p.resetBasePositionAndOrientation(cube, [20, -3, 1], [0, 0, 0, 1], physicsClientId=client)
     renderer.sync(4)  # a body moved
-    assert len(writes) == 3
+    assert renderer.dynamic_ordered is not green
+    _, _, body = renderer.draw(view, projection, 64, 64, True, FAR_M)
+    assert (body == cube)[:, 33:].any() and not (body == cube)[:, :31].any()  # now to the right
     renderer.release()
 
 

@@ -542,9 +542,14 @@ class GLRenderer:
         # only the ego moves between the two, and stationary actors keep their vertices
         self.placed: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
         self.synced: object = None
-        # what the dynamic buffer was last written from (`sync`): its parts' ids, and the parts
-        self.dynamic_identity: tuple = ()
-        self.dynamic_parts: tuple = ()
+        # what the dynamic buffer's drawn part was last written from (`_write_dynamic`): its
+        # parts' ids, the parts, and their vertices in draw order with their batches
+        self.dynamic_key: tuple = ()
+        self.dynamic_parts: list[NDArray] = []
+        self.dynamic_ordered: tuple[NDArray[np.float32], DrawBatches] = (
+            np.zeros((0, FLOATS_PER_VERTEX), np.float32),
+            DrawBatches.empty(),
+        )
         self.shadowed: object = None
         self.lights = SceneLights()
         self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
@@ -774,7 +779,7 @@ class GLRenderer:
         self.placers = {}
         self.placed = {}
         self.synced = None
-        self.dynamic_identity, self.dynamic_parts = (), ()
+        self.dynamic_key, self.dynamic_parts = (), []
         self.shadowed = None
         self.lit = None
 
@@ -813,17 +818,8 @@ class GLRenderer:
         casters = [self._placed(body, position, orientation, animation)
                    for body, position, orientation, animation in lights.casters
                    if body in self.models]  # fmt: skip
-        # each part is the very array of the last sync while its body stood still with the same
-        # colours (`_Body.vertices`, `_placed` keep them): then so are the ordered vertices,
-        # their batches and the buffer's bytes (where the GPU poses the models, the parts are
-        # the signals' lamps, which change a few times a clip)
-        identity = (tuple(map(id, parts[1:])), tuple(map(id, casters)))  # [0]: an empty start
         with current(self.context):
-            if identity != self.dynamic_identity:
-                self._write_dynamic(parts, casters)
-                # held, so that no new array takes one of their ids
-                self.dynamic_identity = identity
-                self.dynamic_parts = (parts, casters)
+            self._write_dynamic(parts, casters)
             if self.posed is not None:
                 self.posed.pose(placements)
         self.lights = lights
@@ -831,24 +827,36 @@ class GLRenderer:
 
     def _write_dynamic(self, parts: list[NDArray], casters: list[NDArray]) -> None:
         """The moving bodies' vertices (`parts`) in draw order, then the shadow casters', into
-        the dynamic buffer; their batches."""
-        if self.one_program:
-            vertices, self.dynamic_batches = self.dynamic_order(np.concatenate(parts))
-        else:
-            vertices, self.dynamic_batches = in_draw_order(np.concatenate(parts), self.cull)
-        if casters:  # after the drawn vertices, in a batch only the shadow pass draws
-            shadow_only = np.concatenate(casters)
-            self.dynamic_batches = self.dynamic_batches.then(
-                SHADOW_ONLY, len(vertices), len(shadow_only), shadow_only
-            )
-            vertices = np.concatenate([vertices, shadow_only])
-        if vertices.nbytes > self.dynamic_buffer.size:
-            for key in [k for k in self.arrays if k[0] == "dynamic"]:
-                self.arrays.pop(key).release()
+        the dynamic buffer; their batches. Each part is the very array of the last sync while
+        its body stood still in the same colours (`_Body.vertices`, `_placed` keep them): then
+        the ordered vertices, their batches and their bytes in the buffer are the last ones
+        (where the GPU poses the models, the parts are the signals' lamps, which change a few
+        times a clip, and the casters the ego alone, which moves most steps)."""
+        key = tuple(map(id, parts[1:]))  # [0]: an empty start, made anew
+        written = key == self.dynamic_key
+        if not written:
+            if self.one_program:
+                ordered, batches = self.dynamic_order(np.concatenate(parts))
+            else:
+                ordered, batches = in_draw_order(np.concatenate(parts), self.cull)
+            # the parts held, so that no new array takes one of their ids
+            self.dynamic_key, self.dynamic_parts = key, parts
+            self.dynamic_ordered = (ordered, batches)
+        ordered, batches = self.dynamic_ordered
+        shadow_only = np.concatenate(casters) if casters else ordered[:0]
+        if ordered.nbytes + shadow_only.nbytes > self.dynamic_buffer.size:
+            for name in [k for k in self.arrays if k[0] == "dynamic"]:
+                self.arrays.pop(name).release()
             self.dynamic_buffer.release()
-            self.dynamic_buffer = self.context.buffer(reserve=2 * vertices.nbytes, dynamic=True)
-        if vertices.nbytes:
-            self.dynamic_buffer.write(vertices)  # its bytes as they lie: no copy
+            size = 2 * (ordered.nbytes + shadow_only.nbytes)
+            self.dynamic_buffer = self.context.buffer(reserve=size, dynamic=True)
+            written = False
+        if not written and ordered.nbytes:
+            self.dynamic_buffer.write(ordered)  # its bytes as they lie: no copy
+        if casters:  # after the drawn vertices, in a batch only the shadow pass draws
+            batches = batches.then(SHADOW_ONLY, len(ordered), len(shadow_only), shadow_only)
+            self.dynamic_buffer.write(shadow_only, offset=ordered.nbytes)
+        self.dynamic_batches = batches
 
     def _placed(self, body: int, position, orientation, animation: Animation) -> NDArray:
         """The model of `body` posed by `animation` at (position, orientation), in the world

@@ -1,6 +1,7 @@
 """What posing, ordering and uploading a frame's moving bodies costs (`GLRenderer.sync`), as a
 GPU host's renderer does it (the scene cut into cells, one scene program), measured on any host:
-the CPU's share of a closed-loop or collection step that no GPU takes over.
+the CPU's share of a closed-loop or collection step that no GPU takes over. The ego is placed
+at its logged pose as the cameras' (hidden, casting its shadow), as a closed-loop step does.
 
     python scripts/dev/bench_sync.py DATA CLIP [--frames 60] [--pose-on gpu|cpu]
 
@@ -38,7 +39,11 @@ def main() -> None:
         world.gl.forget_bodies()
         world.gl.set_models(world.body_models())
         seconds = []
-        for frame in range(1, min(args.frames, scenario.ego.x_m.shape[0])):
+        ego = scenario.ego
+        for frame in range(1, min(args.frames, ego.x_m.shape[0])):
+            # the cameras' ego, as a closed-loop step places it: hidden, casting its shadow
+            world.place_ego(float(ego.x_m[frame]), float(ego.y_m[frame]), ego.track_id,
+                            float(ego.yaw_rad[frame]))  # fmt: skip
             world.set_time(frame)
             start = time.perf_counter()
             world.gl.sync(world.state, world.animations, world.scene_lights)
