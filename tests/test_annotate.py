@@ -140,9 +140,10 @@ def test_jpeg_round_trip_is_close():
 
 def test_jpeg_of_an_rgb_view_of_a_bgra_image():
     """The GL renderer's views are RGB views of the BGRA it read (its first three bytes
-    backwards): encoded from the BGRA as it is, to the same bytes as the contiguous RGB; other
-    views of a four-channel array (RGBA's first three, BGRA's last three, a crop) are not taken
-    for one."""
+    backwards): encoded from the BGRA as it is, to the same bytes as the contiguous RGB; a
+    window of such a read (a view of an atlas of views side by side) is its window of BGRA
+    pixels; other views of a four-channel array (RGBA's first three, BGRA's last three, BGRA's
+    first three without the flip) are not taken for one."""
     from drivee2e_data.sim.gl_readback import bgra_under
 
     rng = np.random.default_rng(3)
@@ -151,8 +152,16 @@ def test_jpeg_of_an_rgb_view_of_a_bgra_image():
     rgb = bgra[..., 2::-1]
     assert bgra_under(rgb) is bgra
     assert tuple(rgb[0, 0]) == (200, 40, 40)
-    for other in (bgra[..., :3], bgra[..., 3:0:-1], bgra[:45, :, 2::-1], bgra[:, 1:, 2::-1]):
+    for other in (bgra[..., :3], bgra[..., 3:0:-1], bgra[:, 1:, :3]):
         assert bgra_under(other) is None
+    for rows, columns in ((slice(0, 45), slice(None)), (slice(None), slice(1, None)),
+                          (slice(10, 30), slice(80, 120))):  # fmt: skip
+        window = bgra_under(bgra[rows, columns, 2::-1])
+        assert window is not None and np.shares_memory(window, bgra)
+        assert np.array_equal(window, bgra[rows, columns])
+        assert encode_jpeg(bgra[rows, columns, 2::-1]) == encode_jpeg(
+            np.ascontiguousarray(bgra[rows, columns, 2::-1])
+        )
     assert encode_jpeg(rgb) == encode_jpeg(np.ascontiguousarray(rgb))
     assert encode_jpeg(rgb) != encode_jpeg(np.ascontiguousarray(bgra[..., :3]))
     decoded = cv2_decode(encode_jpeg(rgb, 95))

@@ -97,6 +97,10 @@ def test_planar_gives_the_same_bytes_for_a_bgra_read_as_for_its_rgb_copy(size) -
     fast, reference = planar(view, size), planar(copy, size)
     assert fast.shape == (3, size[1], size[0]) and fast.flags.c_contiguous
     assert np.array_equal(fast, reference)
+    # the middle view of an atlas of three side by side (the reduced views' read)
+    atlas = rng.integers(0, 256, (180, 3 * 320, 4), dtype=np.uint8)
+    middle = atlas[:, 320:640, 2::-1]
+    assert np.array_equal(planar(middle, size), planar(np.ascontiguousarray(middle), size))
     assert np.array_equal(
         reference[0], cv2.resize(copy, size, interpolation=cv2.INTER_AREA)[..., 0]
     )

@@ -170,6 +170,25 @@ class DrawBatches:
         """(B, 8, 3) the corners of each batch's box."""
         return np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
 
+    @cached_property
+    def _group_masks(self) -> dict[frozenset[int], NDArray[np.bool_]]:
+        return {}
+
+    def _in_groups(self, groups: frozenset[int]) -> NDArray[np.bool_]:
+        """(B,) which batches are of `groups` (read-only; kept per set: a view asks for the
+        same few sets at every step, of batches that last a clip)."""
+        mask = self._group_masks.get(groups)
+        if mask is None:
+            mask = np.isin(self.group, list(groups))
+            mask.setflags(write=False)
+            self._group_masks[groups] = mask
+        return mask
+
+    @cached_property
+    def foliage(self) -> NDArray[np.int64]:
+        """Indices of the batches of crowns, detailed or coarse (`level_of_detail`'s)."""
+        return np.flatnonzero(self._in_groups(frozenset({NEAR_FOLIAGE, FAR_FOLIAGE})))
+
     def visible(self, matrix: NDArray[np.float64]) -> NDArray[np.bool_]:
         """(B,) whether each batch's box may show in the view of `matrix` (world to clip space,
         4x4, perspective or orthographic): false only where all eight corners lie beyond one
@@ -200,9 +219,9 @@ class DrawBatches:
         for all), and runs less than `MERGE_GAP_VERTICES` apart joined with what lies between;
         batches of the groups in `skip`, and those `excluded` `(B,)` (another level of detail's),
         left out and never drawn as part of a gap."""
-        skipped = np.isin(self.group, list(skip))
+        skipped = self._in_groups(skip)
         if excluded is not None:
-            skipped |= excluded
+            skipped = skipped | excluded
         # skipped batches before each index: a draw never spans one, not even in a gap
         barriers = np.cumsum(skipped)
         drawn = np.flatnonzero(visible & ~skipped)
@@ -228,9 +247,15 @@ def level_of_detail(batches: DrawBatches, eye_m: NDArray[np.float64]) -> NDArray
     """`(B,)` which batches a view from `eye_m` (world frame) draws at their level of detail:
     detailed crowns whose box comes within `FOLIAGE_DETAIL_M`, coarse ones whose box does not;
     every other batch."""
-    nearest = np.clip(np.asarray(eye_m, np.float64), batches.low_m, batches.high_m)
-    near = np.linalg.norm(nearest - eye_m, axis=1) <= FOLIAGE_DETAIL_M
-    return ~(((batches.group == NEAR_FOLIAGE) & ~near) | ((batches.group == FAR_FOLIAGE) & near))
+    drawn = np.ones(len(batches.group), bool)
+    crowns = batches.foliage  # only crowns have levels: the rest are drawn at every distance
+    if len(crowns):
+        eye = np.asarray(eye_m, np.float64)
+        nearest = np.clip(eye, batches.low_m[crowns], batches.high_m[crowns])
+        near = np.linalg.norm(nearest - eye, axis=1) <= FOLIAGE_DETAIL_M
+        group = batches.group[crowns]
+        drawn[crowns] = ~(((group == NEAR_FOLIAGE) & ~near) | ((group == FAR_FOLIAGE) & near))
+    return drawn
 
 
 def in_draw_order(

@@ -96,20 +96,31 @@ class PixelReads:
 
 
 def bgra_under(rgb: NDArray[np.uint8]) -> NDArray[np.uint8] | None:
-    """The (H, W, 4) contiguous BGRA array whose first three channels, backwards, `rgb`
-    (H, W, 3) is, as the GL renderer's colour views are (`GLRenderer.queue` reads BGRA), if it
-    is one; else None."""
+    """The (H, W, 4) BGRA pixels whose first three channels, backwards, `rgb` (H, W, 3) is, as
+    the GL renderer's colour views are (`GLRenderer.queue` reads BGRA), if it is one; else
+    None. The pixels are a view of the BGRA read (contiguous rows where `rgb` spans the read's
+    width; a window of its rows where the read holds several views side by side, as the
+    reduced views' atlas does), which OpenCV takes as it lies."""
     base = rgb.base
-    if (
+    if not (
         isinstance(base, np.ndarray)
         and base.dtype == np.uint8
-        and base.shape == (*rgb.shape[:2], 4)
+        and base.ndim == 3
+        and base.shape[2] == 4
         and base.flags.c_contiguous
-        and rgb.strides == (*base.strides[:2], -1)
-        and rgb.__array_interface__["data"][0] == base.__array_interface__["data"][0] + 2
+        and rgb.ndim == 3
+        and rgb.strides == (base.strides[0], 4, -1)
     ):
+        return None
+    offset = rgb.__array_interface__["data"][0] - 2 - base.__array_interface__["data"][0]
+    row, within = divmod(offset, base.strides[0])
+    column, remainder = divmod(within, 4)
+    height, width = rgb.shape[:2]
+    if offset < 0 or remainder or row + height > base.shape[0] or column + width > base.shape[1]:
+        return None
+    if (row, column, height, width) == (0, 0, *base.shape[:2]):
         return base
-    return None
+    return base[row : row + height, column : column + width]
 
 
 def contiguous_rgb(rgb: NDArray[np.uint8]) -> NDArray[np.uint8]:
