@@ -171,6 +171,11 @@ class DrawBatches:
         return np.where(_CORNER_CHOICE[None], self.high_m[:, None], self.low_m[:, None])
 
     @cached_property
+    def group_set(self) -> frozenset[int]:
+        """The material groups of these batches (a view's programs are chosen by them)."""
+        return frozenset(self.group.tolist())
+
+    @cached_property
     def _group_masks(self) -> dict[frozenset[int], NDArray[np.bool_]]:
         return {}
 

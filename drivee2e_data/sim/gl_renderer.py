@@ -1124,9 +1124,9 @@ class GLRenderer:
             variant = scene_variant(shader_look)
             if shader_look.lamps_on:
                 self._light_texture(shader_look)
-            groups = {*self.dynamic_batches.group.tolist(), *self.static_batches.group.tolist()}
+            groups = {*self.dynamic_batches.group_set, *self.static_batches.group_set}
             if self.posed is not None:
-                groups.update(self.posed.batches.group.tolist())
+                groups.update(self.posed.batches.group_set)
             if not casters_drawn:
                 groups.discard(SHADOW_ONLY)
             defines = {self._scene_defines(group, variant) for group in groups}
