@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from drivee2e_data import splits, store
 from drivee2e_data.cli import main
 from drivee2e_data.evaluate.runner import EPISODES_FOLDER
+from drivee2e_data.sim.egl_context import Priority, requested_priority
 from drivee2e_data.sim.gl_renderer import context_made
 from tests.conftest import copy_clips
 
@@ -358,6 +359,9 @@ def test_a_worker_given_context_slots_makes_its_context_with_one_before_any_epis
         assert not job.done()  # the worker waits for a slot before it takes a task
         slots.release()
         assert job.result(timeout=60) is True
+        # made at low priority, so that the policy server's network goes first on the GPU
+        assert pool.submit(requested_priority).result(timeout=60) is Priority.LOW
     assert slots.acquire(timeout=5)  # given back once made
     with worker_pool(1, runner._init_worker, (context.Value("i", 0),), context) as pool:
         assert pool.submit(context_made).result(timeout=60) is False  # none without slots
+        assert pool.submit(requested_priority).result(timeout=60) is None

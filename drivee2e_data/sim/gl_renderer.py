@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim import mesa
+from drivee2e_data.sim import egl_context, mesa
 from drivee2e_data.sim.conditions import (
     Box,
     LampRaster,
@@ -143,13 +143,19 @@ def scene_variant(look: ShaderLook) -> tuple[str, ...]:
 
 @functools.cache
 def _context():
-    """The process's OpenGL context (EGL, headless), made on first use; None where none can
-    be made (no moderngl, no EGL driver)."""
+    """The process's OpenGL context (EGL, headless), made on first use, at the priority asked
+    for (`egl_context.requested_priority`; else glcontext's); None where none can be made (no
+    moderngl, no EGL driver)."""
+    priority = egl_context.requested_priority()  # a bad value is the user's error, not "no GL"
     try:
         import moderngl
 
         mesa.activate()  # a newer Mesa where one was fetched, before EGL's first call
         with current(None):
+            if priority is not None:
+                context, given = egl_context.create(priority)
+                LOG.debug("GL context at priority %s (asked %s)", given, priority)
+                return context
             return moderngl.create_standalone_context(backend="egl")
     except Exception as error:  # any failure means: no GL here
         LOG.debug("no OpenGL context: %s", error)

@@ -1,0 +1,81 @@
+"""A GL context made through EGL here, at a priority: the variable that asks for it, a context
+that draws, and the renderer's images the same bytes as in glcontext's context."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivee2e_data.errors import DriveE2EError
+from drivee2e_data.sim import egl_context, gl_renderer
+from drivee2e_data.sim.egl_context import PRIORITY_VARIABLE, Priority
+
+needs_gl = pytest.mark.skipif(not gl_renderer.gl_available(), reason="no OpenGL context (EGL)")
+
+
+def test_the_variable_names_the_priority_and_a_bad_value_names_the_variable(monkeypatch):
+    monkeypatch.delenv(PRIORITY_VARIABLE, raising=False)
+    assert egl_context.requested_priority() is None
+    monkeypatch.setenv(PRIORITY_VARIABLE, "LOW")
+    assert egl_context.requested_priority() is Priority.LOW
+    monkeypatch.setenv(PRIORITY_VARIABLE, "lowest")
+    with pytest.raises(DriveE2EError, match=f"{PRIORITY_VARIABLE}='lowest': expected one of high"):
+        egl_context.requested_priority()
+
+
+def test_a_priority_asked_for_is_kept_over_the_pools(monkeypatch):
+    monkeypatch.delenv(PRIORITY_VARIABLE, raising=False)
+    egl_context.use_priority(Priority.LOW)
+    assert egl_context.requested_priority() is Priority.LOW
+    monkeypatch.setenv(PRIORITY_VARIABLE, "high")  # the user's
+    egl_context.use_priority(Priority.LOW)
+    assert egl_context.requested_priority() is Priority.HIGH
+
+
+@needs_gl
+def test_a_context_made_at_a_priority_draws_and_says_what_it_was_given():
+    context, given = egl_context.create(Priority.LOW, device=0)
+    try:
+        assert given in (None, Priority.LOW)  # None: the driver offers no priorities
+        with context:
+            framebuffer = context.simple_framebuffer((8, 4))
+            framebuffer.use()
+            framebuffer.clear(0.2, 0.4, 0.6, 1.0)
+            pixels = np.frombuffer(framebuffer.read(components=3), np.uint8).reshape(4, 8, 3)
+            framebuffer.release()
+        assert pixels[0, 0].tolist() == [51, 102, 153] and (pixels == pixels[0, 0]).all()
+    finally:
+        context.release()
+
+
+@needs_gl
+def test_the_renderer_draws_the_same_bytes_in_a_low_priority_context(monkeypatch):
+    import pybullet
+
+    from tests.test_gl_renderer import NOON, _look_along_x
+
+    def cube_view() -> tuple[np.ndarray, ...]:
+        client = pybullet.connect(pybullet.DIRECT)
+        try:
+            shape = pybullet.createVisualShape(pybullet.GEOM_BOX, halfExtents=[1, 1, 1],
+                                               rgbaColor=[1, 0, 0, 1], physicsClientId=client)  # fmt: skip
+            pybullet.createMultiBody(0, -1, shape, [20, 0, 1], physicsClientId=client)
+            renderer = gl_renderer.GLRenderer(pybullet, client, [], NOON)
+            renderer.sync(1)
+            drawn = renderer.draw(*_look_along_x(pybullet, client), 64, 48, True, 200.0)
+            renderer.release()
+            return drawn
+        finally:
+            pybullet.disconnect(client)
+
+    monkeypatch.delenv(PRIORITY_VARIABLE, raising=False)
+    gl_renderer.release_context()
+    default = cube_view()
+    gl_renderer.release_context()
+    monkeypatch.setenv(PRIORITY_VARIABLE, "low")
+    try:
+        low = cube_view()
+    finally:
+        gl_renderer.release_context()  # the next test's context is glcontext's again
+    assert (default[2] >= 0).any()  # the cube is in view
+    assert all(np.array_equal(a, b) for a, b in zip(default, low, strict=True))
