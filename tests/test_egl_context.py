@@ -34,6 +34,39 @@ def test_a_priority_asked_for_is_kept_over_the_pools(monkeypatch):
     assert egl_context.requested_priority() is Priority.HIGH
 
 
+class _FakeEGL:
+    """eglCreateContext and eglQueryContext of a driver that grants `granted` (None: refuses
+    any priority asked for)."""
+
+    def __init__(self, granted: Priority | None) -> None:
+        self.granted, self.asked = granted, []
+
+    def eglCreateContext(self, display, config, share, attributes) -> int:
+        values = list(attributes)
+        self.asked.append(values)
+        if egl_context.EGL_CONTEXT_PRIORITY_LEVEL_IMG in values and self.granted is None:
+            return 0  # EGL_BAD_ATTRIBUTE, EGL_BAD_ACCESS
+        return 77
+
+    def eglQueryContext(self, display, context, attribute, value) -> int:
+        value._obj.value = self.granted.egl_value
+        return 1
+
+
+def test_a_refused_priority_still_gives_a_context_of_the_drivers_own():
+    granting = _FakeEGL(Priority.LOW)
+    assert egl_context._priority_context(granting, 1, 2, Priority.LOW) == (77, Priority.LOW)
+    assert len(granting.asked) == 1
+    refusing = _FakeEGL(None)
+    assert egl_context._priority_context(refusing, 1, 2, Priority.HIGH) == (77, None)
+    with_priority, without = refusing.asked
+    assert with_priority[-3:] == [egl_context.EGL_CONTEXT_PRIORITY_LEVEL_IMG, 0x3101, 0x3038]
+    assert egl_context.EGL_CONTEXT_PRIORITY_LEVEL_IMG not in without
+    unasked = _FakeEGL(None)
+    assert egl_context._priority_context(unasked, 1, 2, None) == (77, None)  # not offered
+    assert len(unasked.asked) == 1
+
+
 @needs_gl
 def test_a_context_made_at_a_priority_draws_and_says_what_it_was_given():
     context, given = egl_context.create(Priority.LOW, device=0)

@@ -147,6 +147,29 @@ def _device_display(egl: Any, index: int) -> int:
     return display
 
 
+def _priority_context(
+    egl: Any, display: int, config: Any, priority: Priority | None
+) -> tuple[int, Priority | None]:
+    """An OpenGL 3.3 core context of `display` at `priority` (None: the driver's own), and the
+    priority it was given; where the driver refuses the priority (a level it keeps for a
+    privileged process, say), a context of its own priority rather than none."""
+    base = [EGL_CONTEXT_MAJOR_VERSION, 3, EGL_CONTEXT_MINOR_VERSION, 3,
+            EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT]  # fmt: skip
+    if priority is not None:
+        attributes = [*base, EGL_CONTEXT_PRIORITY_LEVEL_IMG, priority.egl_value, EGL_NONE]
+        context = egl.eglCreateContext(display, config, None,
+                                       (ctypes.c_int * len(attributes))(*attributes))  # fmt: skip
+        if context:
+            level = ctypes.c_int(0)
+            egl.eglQueryContext(display, context, EGL_CONTEXT_PRIORITY_LEVEL_IMG,
+                                ctypes.byref(level))  # fmt: skip
+            return context, next((p for p in Priority if p.egl_value == level.value), None)
+    attributes = [*base, EGL_NONE]
+    context = egl.eglCreateContext(display, config, None,
+                                   (ctypes.c_int * len(attributes))(*attributes))  # fmt: skip
+    return context, None
+
+
 def create(priority: Priority, device: int | None = None) -> tuple[Any, Priority | None]:
     """A moderngl context (OpenGL 3.3 core, a 1x1 pbuffer as its surface) on EGL device
     `device` (default: `DEVICE_VARIABLE`, else 0) at `priority` where the driver offers it;
@@ -162,27 +185,15 @@ def create(priority: Priority, device: int | None = None) -> tuple[Any, Priority
     wanted = (ctypes.c_int * 5)(EGL_SURFACE_TYPE, EGL_PBUFFER_BIT, EGL_RENDERABLE_TYPE,
                                 EGL_OPENGL_BIT, EGL_NONE)  # fmt: skip
     config, found = ctypes.c_void_p(), ctypes.c_int(0)
-    if not egl.eglChooseConfig(display, wanted, ctypes.byref(config), 1, ctypes.byref(found)):
-        raise OSError(f"EGL device {device}: no configuration for an OpenGL pbuffer")
-    if not found.value:
+    chosen = egl.eglChooseConfig(display, wanted, ctypes.byref(config), 1, ctypes.byref(found))
+    if not chosen or not found.value:
         raise OSError(f"EGL device {device}: no configuration for an OpenGL pbuffer")
     surface = egl.eglCreatePbufferSurface(display, config,
                                           (ctypes.c_int * 5)(EGL_WIDTH, 1, EGL_HEIGHT, 1, EGL_NONE))  # fmt: skip
     egl.eglBindAPI(EGL_OPENGL_API)
-    attributes = [EGL_CONTEXT_MAJOR_VERSION, 3, EGL_CONTEXT_MINOR_VERSION, 3,
-                  EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT]  # fmt: skip
-    if offered:
-        attributes += [EGL_CONTEXT_PRIORITY_LEVEL_IMG, priority.egl_value]
-    attributes.append(EGL_NONE)
-    context = egl.eglCreateContext(display, config, None,
-                                   (ctypes.c_int * len(attributes))(*attributes))  # fmt: skip
+    context, given = _priority_context(egl, display, config, priority if offered else None)
     if not surface or not context:
         raise OSError(f"EGL device {device}: no OpenGL 3.3 context")
-    given = None
-    if offered:
-        level = ctypes.c_int(0)
-        egl.eglQueryContext(display, context, EGL_CONTEXT_PRIORITY_LEVEL_IMG, ctypes.byref(level))
-        given = next((p for p in Priority if p.egl_value == level.value), None)
     loader = _Loader(egl, display, surface, context)
     with loader:
         moderngl.init_context(loader)
