@@ -19,9 +19,11 @@
 # clips' scenarios, maps and split, and TCP's checkpoint in half precision); carried back as
 # INPUTS=out/closedloop_inputs.tar it replaces synthesis, curation, collection and TCP's
 # training (about 100 s of a cold call; AGENTS="tcp" only, DS then that checkpoint's).
+# ROUNDS=N runs every version (and variant) N times in turn, base first (run folders -rK):
+# hosts of one kind differ by up to 1.17x in a day, so versions compare pair by pair in a call.
 #   CLIPS=40 AGENTS="tcp camera" WORKERS="auto" [PROFILE=1] [TIMELINE=1 [TIMELINE_STEPS=1]]
 #   [BASE_TAR=out/base_overlay.tar] [HALF_TCP=out/tcp_half.pt] [VARIANTS="..."]
-#   [SAVE_INPUTS=1 | INPUTS=out/closedloop_inputs.tar] bash scripts/dev/device_closedloop.sh
+#   [SAVE_INPUTS=1 | INPUTS=out/closedloop_inputs.tar] [ROUNDS=2] bash scripts/dev/device_closedloop.sh
 set -euo pipefail
 repo=$(pwd)
 CLIPS="${CLIPS:-40}"
@@ -40,8 +42,8 @@ if [ -n "${INPUTS:-}" ] && [ ! -f "$DATA/splits/default.csv" ]; then  # SAVE_INP
     cp -r /tmp/closedloop_inputs/data/. "$DATA/"
     HALF_TCP="${HALF_TCP:-/tmp/closedloop_inputs/tcp_half.pt}"
 fi
-stage() { local t; t=$(date +%s); "$@" > /tmp/stage.log 2>&1 || { tail -20 /tmp/stage.log; exit 1; }
-          echo "$(( $(date +%s) - t )) s: $*" | cut -c1-110; }
+stage() { local t=$EPOCHREALTIME; "$@" > /tmp/stage.log 2>&1 || { tail -20 /tmp/stage.log; exit 1; }
+          echo "$(awk -v a="$t" -v b="$EPOCHREALTIME" 'BEGIN {printf "%.1f", b - a}') s: $*" | cut -c1-110; }
 if [ ! -f "$DATA/splits/default.csv" ]; then
     stage drivee2e synth --out "$DATA" --clips "$CLIPS" --seed 0 --workers "$(nproc)"
     stage drivee2e curate "$DATA"
@@ -81,11 +83,13 @@ fi
 runs=()
 for agent in $AGENTS; do
     for workers in $WORKERS; do
+      for round in $(seq 1 "${ROUNDS:-1}"); do
         for version in "${versions[@]}" ${VARIANTS:-}; do
             name="${version%%:*}"
             variables=()
             [[ "$version" == *:* ]] && IFS=, read -r -a variables <<< "${version#*:}"
             run="$DATA/runs/$agent-w$workers-$name"
+            [ "${ROUNDS:-1}" = 1 ] || run="$run-r$round"
             checkpoint=(--checkpoint "$DATA/$agent.pt")  # constant velocity reads none
             [ "$agent" = constant-velocity ] && checkpoint=()
             rm -rf "$run"
@@ -96,17 +100,18 @@ for agent in $AGENTS; do
             [ "$version" = base ] && path=/tmp/proj_base
             timeline=()  # TIMELINE=1: where the command's start went (start_timeline.py)
             [ -z "${TIMELINE:-}" ] || timeline=(python3 "$repo/scripts/dev/start_timeline.py"
-                --log "$OUT/timeline-$agent-w$workers-$name.log" --durations ${TIMELINE_STEPS:+--steps} --)
+                --log "$OUT/timeline-$(basename "$run").log" --durations ${TIMELINE_STEPS:+--steps} --)
             stage env "${variables[@]}" PYTHONPATH="$path:/tmp/site" "${timeline[@]}" \
                 python3 -m drivee2e_data.cli evaluate "$DATA" \
                 --split all --agent "$agent" "${checkpoint[@]}" --workers "$workers" \
                 --out "$run"
             [ -z "${TIMELINE:-}" ] || sed 's/^/  /' /tmp/stage.log
             kill "$logger"
-            echo "  $name: GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
+            echo "  $(basename "$run"): GPU busy % (mean of 1 s samples): $(awk '{s+=$1; n++} END \
                 {printf "%.0f", s/n}' "/tmp/util-$agent-$workers")"
             runs+=("$run")
         done
+      done
     done
 done
 python3 "$repo/scripts/dev/closedloop_breakdown.py" "${runs[@]}"
