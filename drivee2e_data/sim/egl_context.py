@@ -13,17 +13,17 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import os
 from enum import Enum
 from typing import Any
 
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.sim.egl_devices import DEVICE_VARIABLE
+from drivee2e_data.sim.egl_devices import DEVICE_VARIABLE, EGL_EXTENSIONS, devices
 
 PRIORITY_VARIABLE = "DRIVEE2E_GL_PRIORITY"
 
 EGL_NONE = 0x3038
-EGL_EXTENSIONS = 0x3055
 EGL_DRAW, EGL_READ = 0x3059, 0x305A
 EGL_PLATFORM_DEVICE_EXT = 0x313F
 EGL_SURFACE_TYPE, EGL_PBUFFER_BIT = 0x3033, 0x0001
@@ -101,10 +101,13 @@ class _Loader:
         self.egl.eglDestroyContext(self.display, self.context)
 
 
-def _egl() -> Any:
+@functools.cache
+def libegl() -> Any:
+    """libEGL through ctypes with the functions this project calls typed (to make, save and
+    restore contexts), or None where there is none."""
     name = ctypes.util.find_library("EGL")
     if name is None:
-        raise OSError("no libEGL")
+        return None
     egl = ctypes.CDLL(name)
     pointer, handle, integer = ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int
     _function(egl, "eglGetProcAddress", pointer, ctypes.c_char_p)
@@ -123,25 +126,21 @@ def _egl() -> Any:
     _function(egl, "eglGetCurrentContext", handle)
     _function(egl, "eglDestroySurface", ctypes.c_uint, handle, handle)
     _function(egl, "eglDestroyContext", ctypes.c_uint, handle, handle)
+    _function(egl, "eglTerminate", ctypes.c_uint, handle)
     return egl
 
 
 def _device_display(egl: Any, index: int) -> int:
     """The EGL display of device `index` (in `eglQueryDevicesEXT`'s order), initialised."""
-    query_address = egl.eglGetProcAddress(b"eglQueryDevicesEXT")
+    found = devices(egl)
     display_address = egl.eglGetProcAddress(b"eglGetPlatformDisplayEXT")
-    if not query_address or not display_address:
-        raise OSError("EGL has no device enumeration (EGL_EXT_device_enumeration)")
-    query = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p),
-                             ctypes.POINTER(ctypes.c_int))(query_address)  # fmt: skip
+    if not display_address:
+        raise OSError("EGL has no platform displays (EGL_EXT_platform_base)")
+    if not 0 <= index < len(found):
+        raise OSError(f"no EGL device {index} (found {len(found)})")
     platform_display = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p,
                                         ctypes.c_void_p)(display_address)  # fmt: skip
-    count = ctypes.c_int(0)
-    if not query(0, None, ctypes.byref(count)) or not 0 <= index < count.value:
-        raise OSError(f"no EGL device {index} (found {count.value})")
-    devices = (ctypes.c_void_p * count.value)()
-    query(count.value, devices, ctypes.byref(count))
-    display = platform_display(EGL_PLATFORM_DEVICE_EXT, devices[index], None)
+    display = platform_display(EGL_PLATFORM_DEVICE_EXT, found[index], None)
     if not display or not egl.eglInitialize(display, None, None):
         raise OSError(f"EGL device {index}: no display")
     return display
@@ -178,7 +177,9 @@ def create(priority: Priority, device: int | None = None) -> tuple[Any, Priority
 
     if device is None:
         device = int(os.environ.get(DEVICE_VARIABLE, "0"))
-    egl = _egl()
+    egl = libegl()
+    if egl is None:
+        raise OSError("no libEGL")
     display = _device_display(egl, device)
     extensions = (egl.eglQueryString(display, EGL_EXTENSIONS) or b"").decode().split()
     offered = PRIORITY_EXTENSION in extensions

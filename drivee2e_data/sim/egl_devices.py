@@ -20,6 +20,27 @@ EGL_EXTENSIONS = 0x3055
 SOFTWARE_EXTENSION = "EGL_MESA_device_software"  # Mesa's llvmpipe device
 
 
+def devices(library) -> list[int]:
+    """The EGL device handles of `library` (libEGL through ctypes, its `eglGetProcAddress`
+    returning a pointer), in `eglQueryDevicesEXT`'s order, as glcontext counts them; [] where
+    EGL has no device enumeration."""
+    library.eglGetProcAddress.restype = ctypes.c_void_p
+    library.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+    query_address = library.eglGetProcAddress(b"eglQueryDevicesEXT")
+    if not query_address:
+        return []
+    query = ctypes.CFUNCTYPE(
+        ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int)
+    )(query_address)
+    count = ctypes.c_int(0)
+    if not query(0, None, ctypes.byref(count)) or count.value <= 0:
+        return []
+    handles = (ctypes.c_void_p * count.value)()
+    if not query(count.value, handles, ctypes.byref(count)):
+        return []
+    return list(handles[: count.value])
+
+
 @functools.cache
 def gpu_devices() -> tuple[int, ...]:
     """Indices (in `eglQueryDevicesEXT` order, as glcontext counts) of the EGL devices that are
@@ -32,25 +53,14 @@ def gpu_devices() -> tuple[int, ...]:
         library = ctypes.CDLL(name)
     except OSError:
         return ()
-    library.eglGetProcAddress.restype = ctypes.c_void_p
-    library.eglGetProcAddress.argtypes = [ctypes.c_char_p]
-    query_address = library.eglGetProcAddress(b"eglQueryDevicesEXT")
+    found_devices = devices(library)
     string_address = library.eglGetProcAddress(b"eglQueryDeviceStringEXT")
-    if not query_address or not string_address:
+    if not found_devices or not string_address:
         return ()
-    query = ctypes.CFUNCTYPE(
-        ctypes.c_uint, ctypes.c_int, ctypes.POINTER(ctypes.c_void_p), ctypes.POINTER(ctypes.c_int)
-    )(query_address)
     device_string = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_void_p, ctypes.c_int)(string_address)
-    count = ctypes.c_int(0)
-    if not query(0, None, ctypes.byref(count)) or count.value <= 0:
-        return ()
-    devices = (ctypes.c_void_p * count.value)()
-    if not query(count.value, devices, ctypes.byref(count)):
-        return ()
     found = []
-    for index in range(count.value):
-        extensions = (device_string(devices[index], EGL_EXTENSIONS) or b"").decode()
+    for index, device in enumerate(found_devices):
+        extensions = (device_string(device, EGL_EXTENSIONS) or b"").decode()
         if SOFTWARE_EXTENSION not in extensions.split():
             found.append(index)
     return tuple(found)

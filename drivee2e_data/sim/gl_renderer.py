@@ -18,7 +18,6 @@ unfiltered (no antialiasing), as with pybullet's renderers.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 import logging
 import os
@@ -162,19 +161,9 @@ def _context():
         return None
 
 
-@functools.cache
 def _libegl():
     """libEGL through ctypes (to save and restore another library's current context), or None."""
-    name = ctypes.util.find_library("EGL")
-    if name is None:
-        return None
-    library = ctypes.CDLL(name)
-    for function in ("eglGetCurrentDisplay", "eglGetCurrentSurface", "eglGetCurrentContext"):
-        getattr(library, function).restype = ctypes.c_void_p
-    library.eglGetCurrentSurface.argtypes = [ctypes.c_int]
-    library.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
-    library.eglTerminate.argtypes = [ctypes.c_void_p]
-    return library
+    return egl_context.libegl()
 
 
 EGL_DRAW, EGL_READ = 0x3059, 0x305A
@@ -190,8 +179,6 @@ def _depth_copy() -> Callable[[object, object, int], None] | None:
     egl = _libegl()
     if egl is None:
         return None
-    egl.eglGetProcAddress.restype = ctypes.c_void_p
-    egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
     blit_address = egl.eglGetProcAddress(b"glBlitFramebuffer")
     bind_address = egl.eglGetProcAddress(b"glBindFramebuffer")
     if not blit_address or not bind_address:
