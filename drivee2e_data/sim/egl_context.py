@@ -74,6 +74,13 @@ def _function(library: Any, name: str, result: Any, *arguments: Any) -> Any:
     return function
 
 
+def current_egl(egl: Any) -> tuple[Any, Any, Any, Any]:
+    """What is current in this thread: (display, draw surface, read surface, context), as
+    `eglMakeCurrent` takes them back; the display None where nothing is."""
+    return (egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(EGL_DRAW),
+            egl.eglGetCurrentSurface(EGL_READ), egl.eglGetCurrentContext())  # fmt: skip
+
+
 class _Loader:
     """What moderngl asks of a context it did not make: GL's functions, and making the context
     current for a block (and what was current before, again after it) and releasing it."""
@@ -86,10 +93,8 @@ class _Loader:
         return self.egl.eglGetProcAddress(name.encode()) or 0
 
     def __enter__(self) -> None:
-        egl = self.egl
-        self.saved.append((egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(EGL_DRAW),
-                           egl.eglGetCurrentSurface(EGL_READ), egl.eglGetCurrentContext()))  # fmt: skip
-        egl.eglMakeCurrent(self.display, self.surface, self.surface, self.context)
+        self.saved.append(current_egl(self.egl))
+        self.egl.eglMakeCurrent(self.display, self.surface, self.surface, self.context)
 
     def __exit__(self, *exception: object) -> None:
         display, draw, read, context = self.saved.pop()

@@ -166,7 +166,6 @@ def _libegl():
     return egl_context.libegl()
 
 
-EGL_DRAW, EGL_READ = 0x3059, 0x305A
 GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
 GL_DEPTH_BUFFER_BIT, GL_NEAREST = 0x100, 0x2600
 
@@ -204,8 +203,7 @@ def current(context) -> Iterator[None]:
     egl = _libegl()
     saved = None
     if egl is not None and egl.eglGetCurrentContext():
-        saved = (egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(EGL_DRAW),
-                 egl.eglGetCurrentSurface(EGL_READ), egl.eglGetCurrentContext())  # fmt: skip
+        saved = egl_context.current_egl(egl)
     try:
         if context is None:  # the block makes its own context (current)
             yield
