@@ -249,3 +249,125 @@ def test_occlusion_variants_drop_unseen_agents_by_class() -> None:
     assert unseen_agents(scenario, {"seen"}, collected, Variant.OCC_ALL) == ["hidden", "walker"]
     result = run(road_scenario(parked("hidden", 30.0)), removed_track_ids=frozenset({"hidden"}))
     assert result.score.success  # the parked car the cameras never saw is gone
+
+
+class Later:
+    """`agent` answered the way a policy server's agent is (`act_later`: the observation taken
+    at once, the action read later), counting its requests."""
+
+    def __init__(self, agent, fail_at: int = -1) -> None:
+        self.agent, self.fail_at, self.requests = agent, fail_at, 0
+        self.name, self.sensors, self.image_size = agent.name, agent.sensors, agent.image_size
+        self.input_size = getattr(agent, "input_size", None)
+
+    def setup(self, route, rig) -> None:
+        self.agent.setup(route, rig)
+
+    def act(self, observation):
+        raise AssertionError("an agent with act_later is not asked to act")
+
+    def act_later(self, observation):
+        self.requests += 1
+        if observation.step == self.fail_at:
+            raise AgentFailure("the server is gone")
+        action = self.agent.act(observation)
+        return lambda: action
+
+
+def same_episode(one, other) -> None:
+    """Two episodes' results equal in all but their timings, step by step where traced."""
+    timing = {"wall_seconds", "observe_seconds", "agent_seconds", "trace"}
+    for name in {f.name for f in dataclasses.fields(one)} - timing:
+        assert getattr(one, name) == getattr(other, name), name
+    assert [dataclasses.astuple(r.state) for r in one.trace] == [
+        dataclasses.astuple(r.state) for r in other.trace
+    ]
+    assert [r.agents for r in one.trace] == [r.agents for r in other.trace]
+
+
+@pytest.mark.parametrize(
+    ("scenario", "agent", "status"),
+    [
+        (road_scenario, LogReplayExpert, "completed"),
+        (lambda: road_scenario(parked("parked", 30.0)), LogReplayExpert, "completed"),
+        (lambda: road_scenario(signal=SignalState.RED), LogReplayExpert, "completed"),
+        (road_scenario, Stop, "agent_blocked"),
+        (road_scenario, VeerLeft, "route_deviation"),
+    ],
+)
+def test_an_agent_answered_later_drives_the_same_episode(scenario, agent, status) -> None:
+    """With `act_later` the rules judge each step while the agent thinks: the same events,
+    steps and scores as acting at once, whichever way the episode ends; one request more, the
+    observation of the step the rules ended the episode at, whose answer is read and dropped."""
+    stop_line = StopLine("stop", np.array([[20.0, -1.75, 0.0], [20.0, 1.75, 0.0]]), ("l1",))
+    intersection_map = road_map(stop_lines=(stop_line,))
+    at_once = Episode(scenario(), intersection_map, agent(), keep_trace=True).run()
+    later = Later(agent())
+    result = Episode(scenario(), intersection_map, later, keep_trace=True).run()
+    assert result.score.status == status
+    same_episode(result, at_once)
+    assert later.requests == result.steps + 1
+
+
+def test_a_request_that_fails_ends_the_episode_where_acting_at_once_fails() -> None:
+    class FailsAt(VeerLeft):
+        def act(self, observation):
+            if observation.step == 7:
+                raise AgentFailure("the server is gone")
+            return super().act(observation)
+
+    at_once = run(road_scenario(), agent=FailsAt())
+    result = run(road_scenario(), agent=Later(VeerLeft(), fail_at=7))
+    assert result.score.status == "agent_failed" and result.steps == 7
+    assert result.score.events == at_once.score.events and result.failure == at_once.failure
+
+
+class PixelSteer:
+    """A camera agent whose plan follows its front camera's pixels (it steers toward the
+    brighter half), keeping a digest of every image it was given."""
+
+    name, sensors, image_size, input_size = "pixels", ("CAM_FRONT",), (320, 180), (80, 45)
+
+    def __init__(self) -> None:
+        self.seen: list[int] = []
+
+    def setup(self, route, rig) -> None:
+        pass
+
+    def act(self, observation) -> Waypoints:
+        image = observation.pixels["CAM_FRONT"]
+        self.seen.append(hash(image.tobytes()))
+        half = image.shape[2] // 2
+        lateral = 0.01 * (float(image[:, :, :half].mean()) - float(image[:, :, half:].mean()))
+        ahead = max(observation.speed_mps, 3.0) * 0.5 * np.arange(1, 7)
+        return Waypoints(np.column_stack([ahead, lateral * np.arange(1, 7)]))
+
+
+@pytest.mark.parametrize("pose_on_gpu", [False, True])
+def test_a_scene_shown_while_the_agent_thinks_gives_the_same_pixels(
+    synthetic_root, pose_on_gpu
+) -> None:
+    """A camera agent answered later on log-replay traffic: the next step's agents, signals
+    and models are shown and handed to the renderer while it thinks, the ego placed after (its
+    headlights and shadow made again): every image and the episode as when acting at once, at
+    night in fog (c0011, headlights) with the models posed on the CPU and as a GPU poses them."""
+    from drivee2e_data.sim.world import World
+
+    scenario = store.read_scenario(synthetic_root, "synth_s0_c0011")
+    intersection_map = store.read_map(synthetic_root, scenario.map_id)
+    results, seen = [], []
+    with World(intersection_map, scenario, "auto") as world:
+        if world.renderer != "gl":
+            pytest.skip("the closed-loop cameras draw with the GL renderer (no EGL here)")
+        if pose_on_gpu:
+            world.gl.cull = world.gl.one_program = world.gl.poses_on_gpu = True
+            world.gl.forget_bodies()
+            world.gl.set_models(world.body_models())
+        for agent in (PixelSteer(), Later(PixelSteer())):
+            world.replay(scenario)
+            episode = Episode(scenario, intersection_map, agent, world=world, keep_trace=True)
+            results.append(episode.run())
+            seen.append(getattr(agent, "agent", agent).seen)
+    assert results[0].steps > 50 and results[0].failure == ""
+    same_episode(results[1], results[0])
+    assert seen[1][: len(seen[0])] == seen[0] and len(seen[1]) == len(seen[0]) + 1

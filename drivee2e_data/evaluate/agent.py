@@ -97,7 +97,12 @@ class Agent(Protocol):
     rendered each step; `image_size` (width, height) or None for the rig's 1600x900: the size
     its training images were collected at. An agent may also declare `input_size` (width,
     height), the size its network reads images at: it then gets `Observation.pixels`, drawn
-    at a fraction of `image_size` and decoded as the Dataset decodes, instead of JPEG bytes."""
+    at a fraction of `image_size` and decoded as the Dataset decodes, instead of JPEG bytes.
+    An agent answered by another process may offer `act_later(observation)`, which sends the
+    observation and returns a function that waits for the action: the episode then does its
+    own work of the step (the rules at the step driven, the next step's scene where the
+    traffic ignores the ego) while the agent thinks, with the same result
+    (`evaluate/episode.py`; the policy server's `ServedAgent` offers it)."""
 
     name: str
     sensors: tuple[str, ...]

@@ -176,34 +176,53 @@ class Episode:
             failure = f"setup raised {type(error).__name__}: {error}"
         progress = RouteProgress(self.route_xy)
         controller = WaypointController(self.bicycle.wheelbase_m)
-        max_steps = math.ceil(
-            (frames - 1) * rules.ROUTE_TIMEOUT_FACTOR + rules.ROUTE_TIMEOUT_MARGIN_S / STEP_S
-        )
-        late_step = (frames - 1) * (1 + rules.SCENARIO_TIMEOUT_SHARE) + (
-            rules.SCENARIO_TIMEOUT_MARGIN_S / STEP_S
-        )
-        blocked_steps = round(
-            (rules.longest_stop_s(motion.speed_mps) + rules.BLOCKED_MARGIN_S) / STEP_S
+        tally = _Tally(
+            events,
+            progress,
+            max_steps=math.ceil(
+                (frames - 1) * rules.ROUTE_TIMEOUT_FACTOR + rules.ROUTE_TIMEOUT_MARGIN_S / STEP_S
+            ),
+            late_step=(frames - 1) * (1 + rules.SCENARIO_TIMEOUT_SHARE)
+            + rules.SCENARIO_TIMEOUT_MARGIN_S / STEP_S,
+            blocked_steps=round(
+                (rules.longest_stop_s(motion.speed_mps) + rules.BLOCKED_MARGIN_S) / STEP_S
+            ),
         )
         history: list[VehicleState] = [state]
         poses = self.traffic.poses(
             0, self.bicycle.centre_xy_m(state), state.yaw_rad, state.speed_mps, self._ego_lw()
         )
-        hit_partners: set[str] = set()
-        red_lines: set[str] = set()
-        stopped = 0
-        driven = outside = off_road = 0.0
-        outside_first = off_road_first = -1
         trace: list[StepRecord] = []
         step = 0
         observe_s = agent_s = 0.0
+        # an agent answered by another process (`act_later`: a policy server's) is waited for
+        # while this one judges the step just driven and, where the traffic does not follow
+        # the ego, shows the next step's scene: the same episode, this process's work done
+        # beside the network's rather than after it
+        later = getattr(self.agent, "act_later", None)
+        ahead = later is not None and self.observer is not None and self.traffic.ego_blind
+        driven: tuple[Any, ...] | None = None  # the step driven, judged while the agent thinks
+        shown: list[AgentPose] | None = None  # the next step's agents, shown ahead
         while not failure:
             began = time.perf_counter()
-            observation = self._observe(step, state, history, poses, progress.progress_m)
+            observation = self._observe(
+                step, state, history, poses, progress.progress_m, shown is not None
+            )
             observed = time.perf_counter()
             observe_s += observed - began
             try:
-                action = parse_action(self.agent.act(observation))
+                if later is None:
+                    action = parse_action(self.agent.act(observation))
+                else:
+                    answer = _submitted(later, observation)
+                    agent_s += time.perf_counter() - observed
+                    ended = driven is not None and self._judge(*driven, tally)
+                    shown = self._show_ahead(step + 1) if ahead and not ended else None
+                    observed = time.perf_counter()
+                    if ended:  # the step driven ended the episode: this answer is not needed
+                        _drain(answer)
+                        break
+                    action = parse_action(answer())
             except AgentFailure as error:
                 failure = str(error)
                 break
@@ -223,65 +242,18 @@ class Episode:
             history.append(state)
             step += 1
             ego_centre = self.bicycle.centre_xy_m(state)
-            poses = self.traffic.poses(
-                step, ego_centre, state.yaw_rad, state.speed_mps, self._ego_lw()
-            )
+            if shown is None:
+                poses = self.traffic.poses(
+                    step, ego_centre, state.yaw_rad, state.speed_mps, self._ego_lw()
+                )
+            else:  # shown ahead: the traffic's poses did not depend on where the ego went
+                poses = shown
             if self.keep_trace:
                 trace.append(StepRecord(step - 1, before, control, poses, planned))
-            moved = float(np.hypot(*(state.xy_m - before.xy_m)))
-            driven += moved
-            # infractions at the new state
-            obstacles = [_obstacle(pose, self.traffic) for pose in poses] + self.rules.static
-            for partner in rules.colliding(
-                ego_centre, state.yaw_rad, self._ego_lw(), state.speed_mps, obstacles
-            ):
-                if partner.partner_id not in hit_partners:
-                    hit_partners.add(partner.partner_id)
-                    kind = rules.collision_kind(partner)
-                    klass = partner.agent_class.value if partner.agent_class else "static"
-                    events.append(Event(kind, step, partner.partner_id, klass))
-            signals = self._signals(step)
-            front_before = self._front(before)
-            for line_id in self.rules.red_lights_crossed(
-                front_before, self._front(state), state.yaw_rad, signals
-            ):
-                if line_id not in red_lines:
-                    red_lines.add(line_id)
-                    events.append(Event(Infraction.RED_LIGHT, step, line_id))
-            wheels = rules.wheel_points(
-                state.xy_m, state.yaw_rad, self.bicycle.wheelbase_m, self.bicycle.width_m
-            )
-            lane = self.rules.lane_status(ego_centre, state.yaw_rad, wheels)
-            if lane in ("off_road", "wrong_lane"):
-                outside += moved
-                off_road += moved if lane == "off_road" else 0.0
-                outside_first = step if outside_first < 0 else outside_first
-                if lane == "off_road" and off_road_first < 0:
-                    off_road_first = step
+            # before the next observation, which reads the progress
             _reached, distance = progress.update(state.xy_m)
-            if progress.completion_percent >= 100.0:
-                if step > late_step:
-                    events.append(
-                        Event(Infraction.SCENARIO_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
-                    )
-                break
-            if distance > rules.ROUTE_DEVIATION_M:
-                events.append(
-                    Event(Infraction.ROUTE_DEVIATION, step, detail=f"{distance:.1f} m off")
-                )
-                break
-            stopped = stopped + 1 if state.speed_mps < rules.BLOCKED_SPEED_MPS else 0
-            if stopped > blocked_steps:
-                events.append(
-                    Event(
-                        Infraction.AGENT_BLOCKED, step, detail=f"stopped {stopped * STEP_S:.1f} s"
-                    )
-                )
-                break
-            if step >= max_steps:
-                events.append(
-                    Event(Infraction.ROUTE_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
-                )
+            driven = (step, before, state, ego_centre, poses, distance)
+            if later is None and self._judge(*driven, tally):
                 break
         if failure:
             events.append(Event(Infraction.AGENT_FAILED, step, detail=failure))
@@ -294,24 +266,96 @@ class Episode:
                 events.append(
                     Event(Infraction.MIN_SPEED, step, detail=f"{100 * ratio:.0f}% of the log")
                 )
-        outside_percent = 100.0 * outside / max(length, 1e-6)
+        outside_percent = 100.0 * tally.outside_m / max(length, 1e-6)
         score = rules.score(progress.completion_percent, events, outside_percent, ratio)
         return EpisodeResult(
             scenario_id=scenario.scenario_id,
             score=score,
             steps=step,
-            driven_m=driven,
+            driven_m=tally.driven_m,
             route_length_m=length,
-            off_road_percent=min(100.0, 100.0 * off_road / max(length, 1e-6)),
+            off_road_percent=min(100.0, 100.0 * tally.off_road_m / max(length, 1e-6)),
             sim_seconds=step * STEP_S,
             wall_seconds=time.perf_counter() - start,
             failure=failure,
             trace=trace,
-            outside_first_step=outside_first,
-            off_road_first_step=off_road_first,
+            outside_first_step=tally.outside_first,
+            off_road_first_step=tally.off_road_first,
             observe_seconds=observe_s,
             agent_seconds=agent_s,
         )
+
+    def _judge(
+        self,
+        step: int,
+        before: VehicleState,
+        state: VehicleState,
+        ego_centre: NDArray[np.float64],
+        poses: list[AgentPose],
+        distance_m: float,
+        tally: _Tally,
+    ) -> bool:
+        """The rules at the step driven from `before` to `state` (`step`, the agents at
+        `poses`, `distance_m` from the route): its infractions into `tally`, and whether the
+        episode ends there."""
+        moved = float(np.hypot(*(state.xy_m - before.xy_m)))
+        tally.driven_m += moved
+        events = tally.events
+        obstacles = [_obstacle(pose, self.traffic) for pose in poses] + self.rules.static
+        for partner in rules.colliding(
+            ego_centre, state.yaw_rad, self._ego_lw(), state.speed_mps, obstacles
+        ):
+            if partner.partner_id not in tally.hit_partners:
+                tally.hit_partners.add(partner.partner_id)
+                kind = rules.collision_kind(partner)
+                klass = partner.agent_class.value if partner.agent_class else "static"
+                events.append(Event(kind, step, partner.partner_id, klass))
+        signals = self._signals(step)
+        for line_id in self.rules.red_lights_crossed(
+            self._front(before), self._front(state), state.yaw_rad, signals
+        ):
+            if line_id not in tally.red_lines:
+                tally.red_lines.add(line_id)
+                events.append(Event(Infraction.RED_LIGHT, step, line_id))
+        wheels = rules.wheel_points(
+            state.xy_m, state.yaw_rad, self.bicycle.wheelbase_m, self.bicycle.width_m
+        )
+        lane = self.rules.lane_status(ego_centre, state.yaw_rad, wheels)
+        if lane in ("off_road", "wrong_lane"):
+            tally.outside_m += moved
+            tally.off_road_m += moved if lane == "off_road" else 0.0
+            tally.outside_first = step if tally.outside_first < 0 else tally.outside_first
+            if lane == "off_road" and tally.off_road_first < 0:
+                tally.off_road_first = step
+        progress = tally.progress
+        if progress.completion_percent >= 100.0:
+            if step > tally.late_step:
+                events.append(
+                    Event(Infraction.SCENARIO_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
+                )
+            return True
+        if distance_m > rules.ROUTE_DEVIATION_M:
+            detail = f"{distance_m:.1f} m off"
+            events.append(Event(Infraction.ROUTE_DEVIATION, step, detail=detail))
+            return True
+        tally.stopped = tally.stopped + 1 if state.speed_mps < rules.BLOCKED_SPEED_MPS else 0
+        if tally.stopped > tally.blocked_steps:
+            detail = f"stopped {tally.stopped * STEP_S:.1f} s"
+            events.append(Event(Infraction.AGENT_BLOCKED, step, detail=detail))
+            return True
+        if step >= tally.max_steps:
+            events.append(Event(Infraction.ROUTE_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s"))
+            return True
+        return False
+
+    def _show_ahead(self, step: int) -> list[AgentPose]:
+        """The agents at `step`, shown in the world with the signals (`SensorObserver.show`)
+        before the ego drives there: where the traffic does not follow the ego, what the next
+        observation would show first."""
+        poses = self.traffic.poses(step)
+        assert self.observer is not None
+        self.observer.show(min(step, self.scenario.num_frames - 1), poses, self._signals(step))
+        return poses
 
     def _ego_lw(self) -> tuple[float, float]:
         return self.bicycle.length_m, self.bicycle.width_m
@@ -331,6 +375,7 @@ class Episode:
         history: list[VehicleState],
         poses: list[AgentPose],
         progress_m: float,
+        shown: bool = False,
     ) -> Observation:
         frame = int(np.searchsorted(self.s_frames, progress_m + 1e-6, side="right")) - 1
         frame = min(max(frame, 0), self.scenario.num_frames - 1)
@@ -353,7 +398,7 @@ class Episode:
         if self.observer is not None:
             images, lidar_points = self.observer.observe(
                 step, min(step, self.scenario.num_frames - 1), state, z, poses,
-                self._signals(step), self.bicycle.centre_xy_m(state),
+                self._signals(step), self.bicycle.centre_xy_m(state), shown=shown,
             )  # fmt: skip
             if self.observer.input_size is not None:
                 images, pixels = {}, images
@@ -386,3 +431,48 @@ def _obstacle(pose: AgentPose, traffic: Traffic) -> Obstacle:
         pose.length_m,
         pose.width_m,
     )
+
+
+@dataclass
+class _Tally:
+    """What an episode's rules have counted so far (`Episode._judge`): its events, the
+    partners hit and red lines crossed (each counted once), the metres driven, outside the
+    route's lanes and off the road (and the first step of each), the steps stopped in a row,
+    and its limits in steps."""
+
+    events: list[Event]
+    progress: RouteProgress
+    max_steps: int
+    late_step: float
+    blocked_steps: int
+    hit_partners: set[str] = field(default_factory=set)
+    red_lines: set[str] = field(default_factory=set)
+    driven_m: float = 0.0
+    outside_m: float = 0.0
+    off_road_m: float = 0.0
+    outside_first: int = -1
+    off_road_first: int = -1
+    stopped: int = 0
+
+
+def _submitted(later: Any, observation: Observation) -> Any:
+    """`later(observation)`'s waiting function, or one that raises what `later` raised: a
+    failed request fails its step as a failed answer does, after the step before is judged."""
+    try:
+        return later(observation)
+    except Exception as error:  # raised again where the answer is read
+        failed = error
+
+        def fail() -> Any:
+            raise failed
+
+        return fail
+
+
+def _drain(answer: Any) -> None:
+    """Read an answer that is not needed (a served agent takes one request at a time); what
+    it raises no longer matters."""
+    try:
+        answer()
+    except Exception:  # the episode has ended: its result is set
+        pass

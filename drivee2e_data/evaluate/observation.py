@@ -90,15 +90,18 @@ class SensorObserver:
         poses: list[AgentPose],
         signals: dict[str, SignalState],
         centre_xy_m: NDArray[np.float64] | None = None,
+        shown: bool = False,
     ) -> tuple[dict[str, bytes | NDArray[np.uint8]], NDArray[np.float32] | None]:
         """Per camera its JPEG (or, with `input_size`, its decoded pixels `(3, H, W)`), and the
         LiDAR points `(N, 5)` at this step; weather noise is seeded by the log frame `frame` as
         in collection. `centre_xy_m`: the ego's box centre (the state holds its rear axle),
-        where its headlights and its shadow are placed, as collection places them."""
+        where its headlights and its shadow are placed, as collection places them. `shown`:
+        `poses` and `signals` were already shown (`show`), only the ego is placed."""
         world = self.world
         centre = state.xy_m if centre_xy_m is None else np.asarray(centre_xy_m, np.float64)
         world.place_ego(float(centre[0]), float(centre[1]), world.ego_id, state.yaw_rad)
-        world.show({p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}, signals, frame)
+        if not shown:
+            self.show(frame, poses, signals, sync=False)
         ego_to_world = se3(state.x_m, state.y_m, ground_z_m, state.yaw_rad)
         images: dict[str, bytes | NDArray[np.uint8]] = {}
         if self.input_size is None:
@@ -122,6 +125,21 @@ class SensorObserver:
                 [sweep.points_m, sweep.intensity, sweep.ring.astype(np.float32)]
             ).astype(np.float32)
         return images, points
+
+    def show(
+        self,
+        frame: int,
+        poses: list[AgentPose],
+        signals: dict[str, SignalState],
+        sync: bool = True,
+    ) -> None:
+        """The agents at `poses` and the signals at `signals` in the world, their models moving
+        as at the log's `frame`; with `sync`, handed to the renderer at once
+        (`World.sync_bodies`): a scene shown ahead of its step, the ego placed at the step."""
+        placements = {p.track_id: (p.x_m, p.y_m, p.z_m, p.yaw_rad) for p in poses}
+        self.world.show(placements, signals, frame)
+        if sync:
+            self.world.sync_bodies()
 
 
 class LoggedDrive:

@@ -35,6 +35,7 @@ from __future__ import annotations
 import os
 import queue
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -239,6 +240,12 @@ class ServedAgent:
         self.agent.setup(route, rig)
 
     def act(self, observation: Observation) -> Waypoints:
+        return self.act_later(observation)()
+
+    def act_later(self, observation: Observation) -> Callable[[], Waypoints]:
+        """Send `observation`'s inputs to the server; the function returned waits for the plan
+        (call it once, before the next request: a worker has one request out at a time), so
+        that the episode can do its own work meanwhile."""
         inputs = self.agent.model_inputs(observation)
         message: Any = inputs
         if self.slot is not None:
@@ -247,6 +254,9 @@ class ServedAgent:
             except OSError:  # no room for the slot (a full /dev/shm): the arrays go by the queue
                 self.slot = None
         self.handle.requests.put((self.worker, message))
+        return self._answer
+
+    def _answer(self) -> Waypoints:
         try:
             answer = self.handle.replies[self.worker].get(timeout=REPLY_TIMEOUT_S)
         except queue.Empty:

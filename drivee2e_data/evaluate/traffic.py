@@ -78,6 +78,12 @@ class Traffic:
             if reactive and t.agent_class.is_motor_vehicle and int(t.valid.sum()) >= 2
         }
 
+    @property
+    def ego_blind(self) -> bool:
+        """Whether the poses ignore the ego (every agent on its log: none reacts), so that a
+        step's can be had before the ego drives there."""
+        return not self.followers
+
     def poses(
         self,
         step: int,

@@ -541,8 +541,14 @@ class GLRenderer:
             np.zeros((0, FLOATS_PER_VERTEX), np.float32),
             DrawBatches.empty(),
         )
+        self.dynamic_written = True  # whether the ordered vertices are in the buffer
         self.shadowed: object = None
+        # the lights last taken, whether they were taken since the bodies' last sync
+        # (`sync_bodies`), and how many times lights were taken: with the bodies' state, what
+        # the light texture and the shadow map are keyed by (`drawn_state`)
         self.lights = SceneLights()
+        self.lights_taken = False
+        self.lights_serial = 0
         self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
         # queued into pixel buffers on a GPU, read at once where GL draws on the CPU
         self.readback = PixelReads(context, queued=not rasterises_on_cpu())
@@ -723,7 +729,7 @@ class GLRenderer:
         the state's lights changed: one texel read in the shader for every lamp and beam. Made
         whole after a new look or new bodies; from one state to the next only the beams' box of
         both states is made again and written (the lamps stay)."""
-        if self.lit == self.synced:
+        if self.lit == self.drawn_state:
             return
         raster = self._lamp_raster()
         spots = self.lights.headlights[:MAX_SPOTS] if look.headlights else ()
@@ -748,7 +754,7 @@ class GLRenderer:
                 r0, r1, c0, c1 = changed
                 self.lamp_texture.write(np.ascontiguousarray(values[r0:r1, c0:c1]).tobytes(),
                                         viewport=(c0, r0, c1 - c0, r1 - r0))  # fmt: skip
-        self.lit = self.synced
+        self.lit = self.drawn_state
 
     def set_models(self, models: Mapping[int, ModelMesh]) -> None:
         """The procedural model of each actor body (drawn instead of its pybullet shapes)."""
@@ -781,7 +787,27 @@ class GLRenderer:
         lights: SceneLights | None = None,
     ) -> None:
         """Read the moving bodies' poses and colours again unless `state` is the one last read
-        (the world's state counter); actors with a model are posed by `animations`."""
+        (the world's state counter; `sync_bodies`), and take `lights` (the shadow casters'
+        vertices written again) where they are not the last ones."""
+        lights = lights or SceneLights()
+        moved = state != self.synced
+        if moved:
+            self.sync_bodies(state, animations)
+        elif self.lights_taken and (lights is self.lights or lights == self.lights):
+            return
+        casters = [self._placed(body, position, orientation, animation)
+                   for body, position, orientation, animation in lights.casters
+                   if body in self.models]  # fmt: skip
+        with current(self.context):
+            self._write_dynamic(casters)
+        self.lights, self.lights_taken = lights, True
+        self.lights_serial += 1
+
+    def sync_bodies(self, state: object, animations: Mapping[int, Animation] | None = None) -> None:
+        """Read the moving bodies' poses and colours again unless `state` is the one last read:
+        `sync`'s part that does not depend on its lights (the ego, placed after the scene, moves
+        only those), which a closed-loop step does while its agent thinks. The shadow casters
+        are written by the next `sync`."""
         if state == self.synced:
             return
         p, client = self.p, self.client
@@ -805,35 +831,42 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        lights = lights or SceneLights()
-        casters = [self._placed(body, position, orientation, animation)
-                   for body, position, orientation, animation in lights.casters
-                   if body in self.models]  # fmt: skip
         with current(self.context):
-            self._write_dynamic(parts, casters)
+            self._order_dynamic(parts)
             if self.posed is not None:
                 self.posed.pose(placements)
-        self.lights = lights
         self.synced = state
+        self.lights_taken = False  # the casters follow the bodies (`sync`)
 
-    def _write_dynamic(self, parts: list[NDArray], casters: list[NDArray]) -> None:
-        """The moving bodies' vertices (`parts`) in draw order, then the shadow casters', into
-        the dynamic buffer; their batches. Each part is the very array of the last sync while
-        its body stood still in the same colours (`_Body.vertices`, `_placed` keep them): then
-        the ordered vertices, their batches and their bytes in the buffer are the last ones
-        (where the GPU poses the models, the parts are the signals' lamps, which change a few
-        times a clip, and the casters the ego alone, which moves most steps)."""
+    @property
+    def drawn_state(self) -> tuple[object, int]:
+        """What names the scene as drawn: the bodies' state and the lights taken since."""
+        return self.synced, self.lights_serial
+
+    def _order_dynamic(self, parts: list[NDArray]) -> None:
+        """The moving bodies' vertices (`parts`) in draw order into the dynamic buffer, and
+        their batches. Each part is the very array of the last sync while its body stood still
+        in the same colours (`_Body.vertices`, `_placed` keep them): then the ordered vertices,
+        their batches and their bytes in the buffer are the last ones (where the GPU poses the
+        models, the parts are the signals' lamps, which change a few times a clip)."""
         key = tuple(map(id, parts[1:]))  # [0]: an empty start, made anew
-        written = key == self.dynamic_key
-        if not written:
-            if self.one_program:
-                ordered, batches = self.dynamic_order(np.concatenate(parts))
-            else:
-                ordered, batches = in_draw_order(np.concatenate(parts), self.cull)
-            # the parts held, so that no new array takes one of their ids
-            self.dynamic_key, self.dynamic_parts = key, parts
-            self.dynamic_ordered = (ordered, batches)
+        if key == self.dynamic_key:
+            return
+        if self.one_program:
+            ordered, batches = self.dynamic_order(np.concatenate(parts))
+        else:
+            ordered, batches = in_draw_order(np.concatenate(parts), self.cull)
+        # the parts held, so that no new array takes one of their ids
+        self.dynamic_key, self.dynamic_parts = key, parts
+        self.dynamic_ordered = (ordered, batches)
+        self.dynamic_written = False
+
+    def _write_dynamic(self, casters: list[NDArray]) -> None:
+        """The moving bodies' ordered vertices (`_order_dynamic`) where not yet in the dynamic
+        buffer, then the shadow casters' after them (the ego alone, which moves most steps);
+        the buffer's batches."""
         ordered, batches = self.dynamic_ordered
+        written = self.dynamic_written
         shadow_only = np.concatenate(casters) if casters else ordered[:0]
         if ordered.nbytes + shadow_only.nbytes > self.dynamic_buffer.size:
             for name in [k for k in self.arrays if k[0] == "dynamic"]:
@@ -844,6 +877,7 @@ class GLRenderer:
             written = False
         if not written and ordered.nbytes:
             self.dynamic_buffer.write(ordered)  # its bytes as they lie: no copy
+        self.dynamic_written = True
         if casters:  # after the drawn vertices, in a batch only the shadow pass draws
             batches = batches.then(SHADOW_ONLY, len(ordered), len(shadow_only), shadow_only)
             self.dynamic_buffer.write(shadow_only, offset=ordered.nbytes)
@@ -1082,7 +1116,7 @@ class GLRenderer:
         # (+ 0.0: a focus of -0.0 keys the same matrix as 0.0 and gets its bytes)
         sun_matrix = _sun_matrix(tuple(shader_look.light_direction),
                                  tuple((focus * SHADOW_FOCUS_STEP_M + 0.0).tolist()))  # fmt: skip
-        key = self.synced if self.lights.shadow_key is None else self.lights.shadow_key
+        key = self.drawn_state if self.lights.shadow_key is None else self.lights.shadow_key
         if shadows and self.shadowed != key:
             self._shadow_pass(sun_matrix)
             self.shadowed = key

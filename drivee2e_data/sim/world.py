@@ -190,7 +190,11 @@ class World:
         self.gl: GLRenderer | None = None
         self.state = 0  # counts changes to what is drawn (poses, lamps, actors)
         self.animations: dict[int, Animation] = {}  # body -> its model's pose inputs now
-        self.scene_lights = SceneLights()
+        # what the scene's lights are made from (`_animate`: the log frame, the shown vehicles'
+        # headlights, the shadow's key), and the lights made from it and the ego's placement
+        # (`scene_lights`; None: to be made again, the ego or the scene moved)
+        self._light_inputs: tuple[int, list, object] | None = None
+        self._scene_lights: SceneLights | None = SceneLights()
         self.replay(scenario, frames)
         if self.renderer == "gl":
             lamps = {body for head in self.twin.lamps.values() for body, _ in head}
@@ -239,6 +243,7 @@ class World:
         self.lighting = lighting(scenario.conditions, self.intersection_map.origin)
         self.look = shader_look(scenario.conditions, self.intersection_map.origin)
         self.animations = {}
+        self._light_inputs, self._scene_lights = None, None
         if self.gl is not None:
             self.gl.set_look(self.look)
             self.gl.forget_bodies()
@@ -274,16 +279,41 @@ class World:
             self.animations[self.bodies[track.track_id]] = animation
             if headlights and motor:
                 spots.append(_headlight(pose, self.blueprints[track.track_id].size_m))
+        self._light_inputs = (frame, spots, shadow_key)
+        self._scene_lights = None
+
+    @property
+    def scene_lights(self) -> SceneLights:
+        """The lights of the scene as shown (`show`, `set_time`) around the ego as placed
+        (`place_ego`): the vehicles' headlights and the ego's, nearest the ego first, and the
+        ego's shadow where it is hidden but placed; made when first asked for after either
+        changed, so that a scene shown before its ego is placed (a closed-loop step's scene,
+        shown while its agent thinks) gets the lights of that ego."""
+        if self._scene_lights is None:
+            self._scene_lights = self._make_scene_lights()
+        return self._scene_lights
+
+    @scene_lights.setter
+    def scene_lights(self, lights: SceneLights) -> None:
+        """Lights of the caller's own, until the scene or the ego moves."""
+        self._scene_lights = lights
+
+    def _make_scene_lights(self) -> SceneLights:
+        if self._light_inputs is None:
+            return SceneLights()
+        frame, vehicle_spots, shadow_key = self._light_inputs
+        spots = list(vehicle_spots)
         casters = []
         ego = self.scenario.ego
-        if ego is not None and self.ego_pose is not None and ego.track_id not in shown:
+        shown = self.animations
+        if (ego is not None and self.ego_pose is not None
+                and self.bodies[ego.track_id] not in shown):  # fmt: skip
             at = min(max(frame, 0), self.scenario.num_frames - 1)
             position, orientation = self._logged_placement(ego, at, self.ego_pose)
             animation = self._animation(ego, at)[0]
             casters.append((self.bodies[ego.track_id], tuple(position), tuple(orientation),
                             animation))  # fmt: skip
-        if headlights and self.ego_pose is not None:
-            ego = self.scenario.ego
+        if self.look.headlights and self.ego_pose is not None:
             size = self.blueprints[ego.track_id].size_m if ego is not None else (4.6, 1.85, 1.45)
             spots.append(_headlight(self.ego_pose, size))
         # the nearest first: the renderer lights the scene with the first MAX_SPOTS
@@ -292,7 +322,7 @@ class World:
                 np.hypot(spot[0][0] - self.ego_xy[0], spot[0][1] - self.ego_xy[1])
             )
         )
-        self.scene_lights = SceneLights(
+        return SceneLights(
             (float(self.ego_xy[0]), float(self.ego_xy[1])), tuple(spots), tuple(casters),
             shadow_key,
         )  # fmt: skip
@@ -331,6 +361,7 @@ class World:
         self.ego_xy = np.array([x_m, y_m])
         self.ego_id = ego_id
         self.ego_pose = None if yaw_rad is None else (float(x_m), float(y_m), float(yaw_rad))
+        self._scene_lights = None
 
     def set_time(self, frame: int) -> None:
         """Every agent at its logged pose of `frame` (blueprint box centred on the logged box's
@@ -409,6 +440,14 @@ class World:
             )
         self.twin.show(dict(signal_states))
         self.state += 1
+
+    def sync_bodies(self) -> None:
+        """Hand the GL renderer the moving bodies as they stand (what its next draw would do
+        first, `GLRenderer.sync_bodies`), so that a scene shown ahead of its draw (a closed-loop
+        step's, while the agent thinks) leaves the draw only the ego's part; nothing without
+        the GL renderer."""
+        if self.gl is not None:
+            self.gl.sync_bodies(self.state, self.animations)
 
     def actor_pose(self, track_id: str) -> tuple[NDArray[np.float64], float]:
         """(x, y, z) and yaw of a drawn actor."""
