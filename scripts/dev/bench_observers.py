@@ -18,10 +18,11 @@ the exposure meter (its sample pass and the first of a step's two waits for the 
 fewer GL contexts submitting at a time give the GPU more steps a second). Each row gives the
 CPU time of a step too (the processes' own, `time.process_time`): where the steps slow down
 with more processes but their CPU time does not grow, they wait (for the GPU); `--profile`
-prints where the first process's steps went (cProfile) at each process count, to compare the
-functions that grow with the count. `--network` runs a TCP checkpoint's served forward (the
-policy server's call: `ServedAgent`'s stacked inputs through `forward_batch`, batches of each
-of `--rows`, random images) in one more process on the GPU, alone before the observers start
+prints where the first process's steps went (cProfile: the most own time, then the most
+cumulative) at each process count, to compare the functions that grow with the count.
+`--network` runs a TCP checkpoint's served forward (the policy server's call:
+`ServedAgent`'s stacked inputs through `forward_batch`, batches of each of `--rows`, random
+images) in one more process on the GPU, alone before the observers start
 and then over and over while they draw: what the GPU's graphics do to the network a policy
 server runs beside them (a batch's milliseconds, stacking and forward apart).
 """
@@ -85,7 +86,9 @@ def _drive(
         if profile is not None:
             profile.disable()
             text = io.StringIO()
-            pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(18)
+            stats = pstats.Stats(profile, stream=text)
+            stats.sort_stats("tottime").print_stats(18)
+            stats.sort_stats("cumulative").print_stats(30)  # where the own times sit
             report = text.getvalue()
         out.put((seconds, cpu, observer.drawn_rig.cameras[0].width,
                  observer.drawn_rig.cameras[0].height, report))  # fmt: skip
