@@ -4,12 +4,12 @@ log (or IDM along its path with `reactive`), and the route's rules are checked a
 
 Step k: the agent observes the scene at k from the ego's state at k; its action moves the ego
 to k+1; the checks compare the ego at k+1 with the scene at k+1. The episode ends when the
-route is complete or an infraction ends it (deviation, blocked, timeout, agent failure).
+route is complete or an infraction ends it (deviation, blocked, timeout, agent failure); the
+rules at each step are `evaluate/judge.py`'s.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,12 +25,13 @@ from drivee2e_data.evaluate.agent import (
     Waypoints,
     parse_action,
 )
+from drivee2e_data.evaluate.judge import StepJudge, signals_at
 from drivee2e_data.evaluate.traffic import AgentPose, Traffic
 from drivee2e_data.geometry import next_waypoint, polyline_arclength
 from drivee2e_data.hdmap import IntersectionMap
 from drivee2e_data.metrics import closedloop as rules
-from drivee2e_data.metrics.closedloop import Event, Infraction, MapRules, Obstacle, RouteProgress
-from drivee2e_data.scenario import Scenario, SignalState
+from drivee2e_data.metrics.closedloop import Event, Infraction, MapRules, RouteProgress
+from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion, to_ego_frame
 from drivee2e_data.sensors.imu_gnss import enu_to_wgs84
 from drivee2e_data.sim.vehicle import Bicycle, Control, VehicleState, WaypointController
@@ -160,13 +161,11 @@ class Episode:
     def run(self) -> EpisodeResult:
         start = time.perf_counter()
         scenario, motion = self.scenario, self.motion
-        frames = scenario.num_frames
         state = VehicleState(
             float(motion.x_m[0]), float(motion.y_m[0]), float(motion.yaw_rad[0]),
             float(motion.speed_mps[0]), steer_rad=float(motion.steer_rad[0]),
         )  # fmt: skip
         rig = self.observer.rig if self.observer is not None else None
-        events: list[Event] = []
         failure = ""
         try:
             self.agent.setup(self.route, rig)
@@ -176,18 +175,9 @@ class Episode:
             failure = f"setup raised {type(error).__name__}: {error}"
         progress = RouteProgress(self.route_xy)
         controller = WaypointController(self.bicycle.wheelbase_m)
-        tally = _Tally(
-            events,
-            progress,
-            max_steps=math.ceil(
-                (frames - 1) * rules.ROUTE_TIMEOUT_FACTOR + rules.ROUTE_TIMEOUT_MARGIN_S / STEP_S
-            ),
-            late_step=(frames - 1) * (1 + rules.SCENARIO_TIMEOUT_SHARE)
-            + rules.SCENARIO_TIMEOUT_MARGIN_S / STEP_S,
-            blocked_steps=round(
-                (rules.longest_stop_s(motion.speed_mps) + rules.BLOCKED_MARGIN_S) / STEP_S
-            ),
-        )
+        judge = StepJudge.for_episode(scenario, self.rules, self.traffic, self.bicycle, progress,
+                                      motion.speed_mps)  # fmt: skip
+        events = judge.events
         history: list[VehicleState] = [state]
         poses = self.traffic.poses(
             0, self.bicycle.centre_xy_m(state), state.yaw_rad, state.speed_mps, self._ego_lw()
@@ -216,7 +206,7 @@ class Episode:
                 else:
                     answer = _submitted(later, observation)
                     agent_s += time.perf_counter() - observed
-                    ended = driven is not None and self._judge(*driven, tally)
+                    ended = driven is not None and judge.judge(*driven)
                     shown = self._show_ahead(step + 1) if ahead and not ended else None
                     observed = time.perf_counter()
                     if ended:  # the step driven ended the episode: this answer is not needed
@@ -252,8 +242,8 @@ class Episode:
                 trace.append(StepRecord(step - 1, before, control, poses, planned))
             # before the next observation, which reads the progress
             _reached, distance = progress.update(state.xy_m)
-            driven = (step, before, state, ego_centre, poses, distance)
-            if later is None and self._judge(*driven, tally):
+            driven = (step, before, state, poses, distance)
+            if later is None and judge.judge(*driven):
                 break
         if failure:
             events.append(Event(Infraction.AGENT_FAILED, step, detail=failure))
@@ -266,87 +256,24 @@ class Episode:
                 events.append(
                     Event(Infraction.MIN_SPEED, step, detail=f"{100 * ratio:.0f}% of the log")
                 )
-        outside_percent = 100.0 * tally.outside_m / max(length, 1e-6)
+        outside_percent = 100.0 * judge.outside_m / max(length, 1e-6)
         score = rules.score(progress.completion_percent, events, outside_percent, ratio)
         return EpisodeResult(
             scenario_id=scenario.scenario_id,
             score=score,
             steps=step,
-            driven_m=tally.driven_m,
+            driven_m=judge.driven_m,
             route_length_m=length,
-            off_road_percent=min(100.0, 100.0 * tally.off_road_m / max(length, 1e-6)),
+            off_road_percent=min(100.0, 100.0 * judge.off_road_m / max(length, 1e-6)),
             sim_seconds=step * STEP_S,
             wall_seconds=time.perf_counter() - start,
             failure=failure,
             trace=trace,
-            outside_first_step=tally.outside_first,
-            off_road_first_step=tally.off_road_first,
+            outside_first_step=judge.outside_first,
+            off_road_first_step=judge.off_road_first,
             observe_seconds=observe_s,
             agent_seconds=agent_s,
         )
-
-    def _judge(
-        self,
-        step: int,
-        before: VehicleState,
-        state: VehicleState,
-        ego_centre: NDArray[np.float64],
-        poses: list[AgentPose],
-        distance_m: float,
-        tally: _Tally,
-    ) -> bool:
-        """The rules at the step driven from `before` to `state` (`step`, the agents at
-        `poses`, `distance_m` from the route): its infractions into `tally`, and whether the
-        episode ends there."""
-        moved = float(np.hypot(*(state.xy_m - before.xy_m)))
-        tally.driven_m += moved
-        events = tally.events
-        obstacles = [_obstacle(pose, self.traffic) for pose in poses] + self.rules.static
-        for partner in rules.colliding(
-            ego_centre, state.yaw_rad, self._ego_lw(), state.speed_mps, obstacles
-        ):
-            if partner.partner_id not in tally.hit_partners:
-                tally.hit_partners.add(partner.partner_id)
-                kind = rules.collision_kind(partner)
-                klass = partner.agent_class.value if partner.agent_class else "static"
-                events.append(Event(kind, step, partner.partner_id, klass))
-        signals = self._signals(step)
-        for line_id in self.rules.red_lights_crossed(
-            self._front(before), self._front(state), state.yaw_rad, signals
-        ):
-            if line_id not in tally.red_lines:
-                tally.red_lines.add(line_id)
-                events.append(Event(Infraction.RED_LIGHT, step, line_id))
-        wheels = rules.wheel_points(
-            state.xy_m, state.yaw_rad, self.bicycle.wheelbase_m, self.bicycle.width_m
-        )
-        lane = self.rules.lane_status(ego_centre, state.yaw_rad, wheels)
-        if lane in ("off_road", "wrong_lane"):
-            tally.outside_m += moved
-            tally.off_road_m += moved if lane == "off_road" else 0.0
-            tally.outside_first = step if tally.outside_first < 0 else tally.outside_first
-            if lane == "off_road" and tally.off_road_first < 0:
-                tally.off_road_first = step
-        progress = tally.progress
-        if progress.completion_percent >= 100.0:
-            if step > tally.late_step:
-                events.append(
-                    Event(Infraction.SCENARIO_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s")
-                )
-            return True
-        if distance_m > rules.ROUTE_DEVIATION_M:
-            detail = f"{distance_m:.1f} m off"
-            events.append(Event(Infraction.ROUTE_DEVIATION, step, detail=detail))
-            return True
-        tally.stopped = tally.stopped + 1 if state.speed_mps < rules.BLOCKED_SPEED_MPS else 0
-        if tally.stopped > tally.blocked_steps:
-            detail = f"stopped {tally.stopped * STEP_S:.1f} s"
-            events.append(Event(Infraction.AGENT_BLOCKED, step, detail=detail))
-            return True
-        if step >= tally.max_steps:
-            events.append(Event(Infraction.ROUTE_TIMEOUT, step, detail=f"{step * STEP_S:.1f} s"))
-            return True
-        return False
 
     def _show_ahead(self, step: int) -> list[AgentPose]:
         """The agents at `step`, shown in the world with the signals (`SensorObserver.show`)
@@ -354,19 +281,13 @@ class Episode:
         observation would show first."""
         poses = self.traffic.poses(step)
         assert self.observer is not None
-        self.observer.show(min(step, self.scenario.num_frames - 1), poses, self._signals(step))
+        self.observer.show(
+            min(step, self.scenario.num_frames - 1), poses, signals_at(self.scenario, step)
+        )
         return poses
 
     def _ego_lw(self) -> tuple[float, float]:
         return self.bicycle.length_m, self.bicycle.width_m
-
-    def _front(self, state: VehicleState) -> NDArray[np.float64]:
-        reach = self.bicycle.rear_axle_to_centre_m + 0.5 * self.bicycle.length_m
-        return state.xy_m + reach * np.array([np.cos(state.yaw_rad), np.sin(state.yaw_rad)])
-
-    def _signals(self, step: int) -> dict[str, SignalState]:
-        frame = min(step, self.scenario.num_frames - 1)  # after the log, lights keep their state
-        return {s.signal_id: s.state_at(frame) for s in self.scenario.signals}
 
     def _observe(
         self,
@@ -398,7 +319,7 @@ class Episode:
         if self.observer is not None:
             images, lidar_points = self.observer.observe(
                 step, min(step, self.scenario.num_frames - 1), state, z, poses,
-                self._signals(step), self.bicycle.centre_xy_m(state), shown=shown,
+                signals_at(self.scenario, step), self.bicycle.centre_xy_m(state), shown=shown,
             )  # fmt: skip
             if self.observer.input_size is not None:
                 images, pixels = {}, images
@@ -420,39 +341,6 @@ class Episode:
             lidar_points=lidar_points,
             pixels=pixels,
         )
-
-
-def _obstacle(pose: AgentPose, traffic: Traffic) -> Obstacle:
-    return Obstacle(
-        pose.track_id,
-        traffic.classes[pose.track_id],
-        np.array([pose.x_m, pose.y_m]),
-        pose.yaw_rad,
-        pose.length_m,
-        pose.width_m,
-    )
-
-
-@dataclass
-class _Tally:
-    """What an episode's rules have counted so far (`Episode._judge`): its events, the
-    partners hit and red lines crossed (each counted once), the metres driven, outside the
-    route's lanes and off the road (and the first step of each), the steps stopped in a row,
-    and its limits in steps."""
-
-    events: list[Event]
-    progress: RouteProgress
-    max_steps: int
-    late_step: float
-    blocked_steps: int
-    hit_partners: set[str] = field(default_factory=set)
-    red_lines: set[str] = field(default_factory=set)
-    driven_m: float = 0.0
-    outside_m: float = 0.0
-    off_road_m: float = 0.0
-    outside_first: int = -1
-    off_road_first: int = -1
-    stopped: int = 0
 
 
 def _submitted(later: Any, observation: Observation) -> Any:
