@@ -129,6 +129,42 @@ def test_at_night_a_headlight_lights_the_road_ahead_of_it_only():
 
 
 @needs_gl
+def test_lights_that_change_while_the_bodies_stand_still_are_drawn():
+    """A closed-loop step shows its scene before the ego is placed (`sync_bodies`), then takes
+    the lights the ego's place gives (`sync` at the same state): a beam taken that way lights
+    the road, one taken away leaves it dark, and lights equal to the last ones are not taken
+    again (the light texture and the shadow map keyed by `drawn_state`)."""
+    import pybullet as p
+
+    handle = p.connect(p.DIRECT)
+    try:
+        lamps = [(-40.0, -40.0, 8.0), (40.0, 40.0, 8.0)]
+        beam = (((0.0, 0.0, 0.7), (1.0, 0.0, 0.0)),)
+        view = p.computeViewMatrix([0, 0, 100], [0, 0, 0], [0, 1, 0], physicsClientId=handle)
+        projection = p.computeProjectionMatrixFOV(30.0, 1.0, 50.0, 200.0, physicsClientId=handle)
+        renderer = GLRenderer(p, handle, [_grey_ground()], _night_look(True), street_lamps=lamps)
+        try:
+            grey = []
+            renderer.sync_bodies(1)
+            for lights in (SceneLights(), SceneLights(headlights=beam), SceneLights()):
+                renderer.sync(1, lights=lights)  # the bodies' state the same throughout
+                rgb, _, _ = renderer.draw(view, projection, 128, 128, False, 200.0)
+                grey.append(rgb.mean(axis=2)[64, 64 + 24])  # 10 m ahead of the beam
+            taken = renderer.drawn_state
+            renderer.sync(1, lights=SceneLights())  # equal to the last: nothing taken
+            assert renderer.drawn_state == taken
+            renderer.sync_bodies(2)  # the bodies again: the same lights are taken after them
+            renderer.sync(2, lights=renderer.lights)
+            assert renderer.drawn_state == (2, taken[1] + 1)
+        finally:
+            renderer.release()
+        assert grey[1] > grey[0] + 40
+        assert grey[2] == pytest.approx(grey[0], abs=1)
+    finally:
+        p.disconnect(handle)
+
+
+@needs_gl
 def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_raster():
     """From one state to the next the renderer remakes and writes only the box of the beams
     before and after: after each state (beams moving, none, back again) the texture holds the
