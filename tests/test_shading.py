@@ -165,6 +165,32 @@ def test_lights_that_change_while_the_bodies_stand_still_are_drawn():
 
 
 @needs_gl
+def test_bodies_removed_and_forgotten_leave_nothing_of_theirs_to_draw():
+    """A moving body synced, then removed and its renderer told (`forget_bodies`, as a world
+    replaying another clip does): the next sync has no moving vertices, even when it finds no
+    moving body at all (an order kept by its parts' ids must not outlive the bodies)."""
+    import pybullet as p
+
+    handle = p.connect(p.DIRECT)
+    try:
+        shape = p.createVisualShape(p.GEOM_BOX, halfExtents=[1, 1, 1], physicsClientId=handle)
+        box = p.createMultiBody(baseVisualShapeIndex=shape, basePosition=[0, 0, 1],
+                                physicsClientId=handle)  # fmt: skip
+        renderer = GLRenderer(p, handle, [_grey_ground()], _night_look(False))
+        try:
+            renderer.sync(1)
+            assert len(renderer.dynamic_ordered[0]) == 12 * 3  # a box: 12 triangles
+            p.removeBody(box, physicsClientId=handle)
+            renderer.forget_bodies()
+            renderer.sync(2)
+            assert len(renderer.dynamic_ordered[0]) == 0
+        finally:
+            renderer.release()
+    finally:
+        p.disconnect(handle)
+
+
+@needs_gl
 def test_the_light_texture_made_again_only_where_beams_were_or_are_is_the_whole_raster():
     """From one state to the next the renderer remakes and writes only the box of the beams
     before and after: after each state (beams moving, none, back again) the texture holds the

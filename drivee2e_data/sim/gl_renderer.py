@@ -533,9 +533,10 @@ class GLRenderer:
         # only the ego moves between the two, and stationary actors keep their vertices
         self.placed: dict[int, tuple[tuple, NDArray[np.float32]]] = {}
         self.synced: object = None
-        # what the dynamic buffer's drawn part was last written from (`_write_dynamic`): its
-        # parts' ids, the parts, and their vertices in draw order with their batches
-        self.dynamic_key: tuple = ()
+        # what the dynamic buffer's drawn part was last written from (`_order_dynamic`): its
+        # parts' ids (None: none yet, or bodies forgotten since), the parts, and their vertices
+        # in draw order with their batches
+        self.dynamic_key: tuple | None = None
         self.dynamic_parts: list[NDArray] = []
         self.dynamic_ordered: tuple[NDArray[np.float32], DrawBatches] = (
             np.zeros((0, FLOATS_PER_VERTEX), np.float32),
@@ -776,7 +777,7 @@ class GLRenderer:
         self.placers = {}
         self.placed = {}
         self.synced = None
-        self.dynamic_key, self.dynamic_parts = (), []
+        self.dynamic_key, self.dynamic_parts = None, []  # ordered again, whatever is found
         self.shadowed = None
         self.lit = None
 
