@@ -130,3 +130,47 @@ def test_the_gpus_reduction_gives_the_cpus_bytes_in_rain_and_at_night(weathered_
                     differences.append(np.abs(gpu - cpu))
     difference = np.concatenate([d.ravel() for d in differences])
     assert difference.max() == 0  # the same bytes: a whole factor (2), no weight to round
+
+
+def test_the_cheap_path_meters_each_reduced_view_and_brings_its_mean_into_the_band(
+    weathered_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The cheap path's exposure is metered on each view as reduced (every pixel of it) and
+    applied to it (`sensors.camera.render_reduced`: one wait for the GPU a step): a view whose
+    mean grey lies inside the band (80-100) comes back as reduced, one outside it with its
+    mean at the aim (82 or 98, the levels that saturate counted), on the overcast noon clip,
+    whose views lie on both sides."""
+    from drivee2e_data.sim.conditions import EXPOSURE_AIM, EXPOSURE_BAND, exposure, meter
+
+    scenario = store.read_scenario(weathered_root, "synth_s0_c0006")
+    drive = LoggedDrive(scenario)
+    reduced: list[np.ndarray] = []
+    render_reduced = World.render_reduced
+
+    def kept(self: World, *args, **kwargs) -> list[np.ndarray]:
+        views = render_reduced(self, *args, **kwargs)
+        reduced.extend(np.array(view) for view in views)
+        return views
+
+    monkeypatch.setattr(World, "render_reduced", kept)
+    with World(store.read_map(weathered_root, scenario.map_id), scenario, "auto") as world:
+        if world.renderer != "gl":
+            pytest.skip("the cheap path draws with the GL renderer (no EGL here)")
+        observer = SensorObserver(world, FRONT, SIZE, INPUT)
+        inside = outside = 0
+        for frame in range(FRAMES):
+            reduced.clear()
+            pixels, _ = drive.observe(observer, frame)
+            names = [camera.name for camera in observer.drawn_rig.cameras]
+            for camera, view in zip(names, reduced, strict=True):
+                shown = pixels[camera].transpose(1, 2, 0)
+                mean = float(meter(view).mean())
+                if EXPOSURE_BAND[0] <= mean <= EXPOSURE_BAND[1]:
+                    assert np.array_equal(shown, view)
+                    inside += 1
+                    continue
+                gain = exposure(view, world.lighting).gain
+                aim = EXPOSURE_AIM[0] if mean < EXPOSURE_BAND[0] else EXPOSURE_AIM[1]
+                assert gain != 1.0 and abs(float(meter(shown).mean()) - aim) < 1.0, (frame, mean)
+                outside += 1
+    assert inside and outside

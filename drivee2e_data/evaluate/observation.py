@@ -7,10 +7,10 @@ Two ways to the images, chosen by what the agent declares:
   bytes as the log where the pose is the logged one).
 - `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
   to it): each camera is drawn at the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8)
-  that keeps at least `SUPERSAMPLE` times `input_size`, exposed and area-resized to
-  `input_size` on the GPU (only the input's pixels are read back), its noise and rain made at
-  the full size and averaged (`sensors.camera.render_reduced`): planar RGB `(3, H, W)` uint8,
-  no JPEG either way, at a fraction of the pixels.
+  that keeps at least `SUPERSAMPLE` times `input_size`, area-resized to `input_size` on the
+  GPU (only the input's pixels are read back) and exposed as metered there, its noise and rain
+  made at the full size and averaged (`sensors.camera.render_reduced`): planar RGB
+  `(3, H, W)` uint8, no JPEG either way, at a fraction of the pixels.
   The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
   and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
   faint continuous line; drawn at the input size itself it would break into dashes where it
@@ -56,7 +56,7 @@ class SensorObserver:
     """Renders the sensors in `sensors` (camera names, `LIDAR_TOP`) of the default rig for an
     agent whose training images were collected at `image_size` (width, height; None for
     1600x900); with `input_size`, drawn small (at least `supersample` times `input_size`),
-    exposed and area-resized to it by the renderer and served as the decoded pixels at that size
+    area-resized to it by the renderer, exposed, and served as the decoded pixels at that size
     (`Observation.pixels`) instead of JPEG bytes (`Observation.images`)."""
 
     def __init__(

@@ -12,9 +12,9 @@ from numpy.typing import NDArray
 from drivee2e_data.sensors.rig import Camera
 from drivee2e_data.sim.conditions import (
     Exposure,
+    expose,
     exposure,
     meter,
-    meter_step,
     night_noise_start,
     post_process,
     reduced_sensor_effects,
@@ -175,35 +175,38 @@ def render_reduced(
 ) -> dict[str, NDArray[np.uint8]]:
     """Per camera of `cameras` (each drawn at its size, smaller than a camera of `full_size`:
     width, height) its view under the clip's weather and light as that camera's image would
-    show after an area reduction to `size`, RGB `(H, W, 3)`: exposed and area-resized by the
-    GL renderer (`World.render_reduced`; the exposure metered at the meter's places of the view
-    as drawn and applied to each drawn pixel before the reduction, as the logged image
-    saturates before it is averaged), then the low-light noise and the rain's streaks made at
-    the full size with the same seed as collection (`with_conditions`) and averaged over each
+    show after an area reduction to `size`, RGB `(H, W, 3)`: area-resized by the GL renderer
+    (`World.render_reduced`), the night's noise from the pool added there, then exposed
+    (`conditions.exposure`, metered on the reduced image itself, every pixel of it, and
+    applied to it), then the rest of the low-light noise and the rain's streaks made at the
+    full size with the same seed as collection (`with_conditions`) and averaged over each
     pixel (`conditions.reduced_sensor_effects`). The closed-loop observer's cheap path: what a
     model reading images at a fraction of the logged size sees, without drawing, weathering,
-    encoding and decoding the full image; on a GPU only `size`'s pixels (and the meter's) are
-    read back."""
+    encoding and decoding the full image; on a GPU only `size`'s pixels are read back, with
+    one wait for the GPU a step.
+
+    The logged image is exposed before it is averaged, at the meter's places of the full view
+    (`meter`): metered and exposed after the reduction, a view's gain is its mean's over other
+    pixels, and a pixel that saturates under the gain in part of its area saturates here as a
+    whole; the images stay within `evaluate.observation.PARITY_PSNR_DB` of the logged ones
+    (docs/closedloop.md), and a step waits for the GPU once instead of twice (with sixteen
+    processes on an H200, 2.3 ms less a step's observing, docs/benchmarks.md)."""
     if world.renderer != "gl":
         raise ValueError("a reduced view needs the GL renderer (it draws the weather itself)")
     lighting, scenario = world.lighting, world.scenario
     views = [(*_eye_and_target(camera, ego_to_world), camera.width, camera.height,
               camera.vertical_fov_deg) for camera in cameras]  # fmt: skip
-    widths = {camera.width for camera in cameras}
-    if len(widths) > 1:
-        raise ValueError(f"the cameras drawn reduced together share one width, not {widths}")
-    step = meter_step(widths.pop()) if widths else 1
     seeds = [noise_seed(scenario.scenario_id, frame, camera) for camera in cameras]
     full_shape = (full_size[1], full_size[0])
     # the night's noise added by the renderer where it comes from the pool (all but images
     # larger than half the pool, drawn afresh below)
     starts = [night_noise_start(seed, full_shape) if lighting.night else None for seed in seeds]
-    reduced = world.render_reduced(views, size, lambda samples: exposure(samples, lighting).gain,
-                                   step, NEAR_M, FAR_M, starts, full_size)  # fmt: skip
+    reduced = world.render_reduced(views, size, NEAR_M, FAR_M, starts, full_size)
     images = {}
     for camera, rgb, seed, start in zip(cameras, reduced, seeds, starts, strict=True):
+        exposed = expose(rgb, exposure(rgb, lighting).gain)
         images[camera.name] = reduced_sensor_effects(
-            rgb, scenario.conditions, lighting, seed, full_shape, noise_added=start is not None
+            exposed, scenario.conditions, lighting, seed, full_shape, noise_added=start is not None
         )
     return images
 

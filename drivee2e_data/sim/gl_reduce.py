@@ -1,22 +1,21 @@
-"""Views read back small: a drawn view exposed and area-resized on the GPU before it is read.
+"""Views read back small: a drawn view area-resized on the GPU before it is read.
 
 The closed-loop observer's cameras are read by a network at a fraction of their drawn size.
-Their exposure and area resize (`conditions.expose`, then OpenCV's INTER_AREA, as the Dataset
-and the camera's collection do it) run as two shader passes over the drawn colour texture:
-one samples the exposure meter's pixels (`shaders/sample.frag`), read back for the gain; the
-other exposes each drawn pixel by that gain and averages the pixels under each output pixel
-(`shaders/reduce.frag`). Only the meter's and the output's pixels come back. A step's views,
-each drawn into a framebuffer of its own (drawn at an offset in a shared one, llvmpipe shades
-a few pixels a level apart), are sampled side by side into one framebuffer and reduced into
-one (`atlas`), each read once. At night the reduction adds the camera's noise, averaged from
-the pool over each output pixel's full-size area (`noise_pool_textures`,
-`conditions.with_reduced_noise`). Where GL draws on the CPU, the same arithmetic by OpenCV on
-the whole view read back costs less (`reduced_on_cpu`).
+Their area resize (OpenCV's INTER_AREA, as the Dataset resizes the logged images) runs as a
+shader pass over the drawn colour texture (`shaders/reduce.frag`), each output pixel the mean
+of the drawn pixels under it; only the output's pixels come back. A step's views, each drawn
+into a framebuffer of its own (drawn at an offset in a shared one, llvmpipe shades a few
+pixels a level apart), are reduced side by side into one framebuffer (`atlas`), read once. At
+night the reduction adds the camera's noise, averaged from the pool over each output pixel's
+full-size area (`noise_pool_textures`, `conditions.with_reduced_noise`). Where GL draws on the
+CPU, the same arithmetic by OpenCV on the whole view read back costs less (`reduced_on_cpu`).
+The camera's exposure is metered on the reduced image and applied to it afterwards
+(`sensors.camera.render_reduced`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,21 +68,14 @@ def atlas(sizes: Sequence[tuple[int, int]], max_px: int) -> Atlas:
 
 
 class ViewReduction:
-    """The two passes, each one triangle a view over its rectangle of an atlas the caller gives
+    """The pass, one triangle a view over its rectangle of an atlas the caller gives
     (`corners`: a buffer of the triangle's three corners in clip space, `in_corner`), reading
     the view's drawn colour texture."""
 
-    def __init__(self, context, sample_program, reduce_program, corners) -> None:
+    def __init__(self, context, reduce_program, corners) -> None:
         self.context = context
-        self.sample_array = context.vertex_array(sample_program, [(corners, "2f", "in_corner")])
         self.reduce_array = context.vertex_array(reduce_program, [(corners, "2f", "in_corner")])
         reduce_program["noise_pool"].value = NOISE_UNIT  # read only where a view has noise
-
-    def sample(self, sources: Sequence, target, samples: Atlas, step: int) -> None:
-        """Into `target` (laid out as `samples`, of `samples_size` each): each colour texture
-        of `sources` (a view each) at every `step`-th row and column from `step // 2`, as
-        numpy's `rgb[s // 2 :: s, s // 2 :: s]`."""
-        self._pass(self.sample_array, sources, target, samples, [{"step": step}] * len(sources))
 
     def reduce(
         self,
@@ -91,18 +83,16 @@ class ViewReduction:
         drawn: Sequence[tuple[int, int]],
         target,
         reduced: Atlas,
-        gains: Sequence[float],
         noise: NightNoise | None = None,
     ) -> None:
         """Into `target` (laid out as `reduced`): each colour texture of `sources` (a view each,
-        drawn at its size in `drawn`) exposed by its gain in `gains` and area-resized, each
-        pixel the mean of the drawn pixels under it; with `noise`, each view's night noise
-        added (`conditions.with_reduced_noise`) where it has a start."""
+        drawn at its size in `drawn`) area-resized, each pixel the mean of the drawn pixels
+        under it; with `noise`, each view's night noise added
+        (`conditions.with_reduced_noise`) where it has a start."""
         starts = noise.starts if noise is not None else (None,) * len(sources)
         uniforms, pools = [], []
-        for (width, height), size, gain, start in zip(drawn, reduced.sizes, gains, starts,
-                                                      strict=True):  # fmt: skip
-            values = {"scale": (width / size[0], height / size[1]), "gain": gain,
+        for (width, height), size, start in zip(drawn, reduced.sizes, starts, strict=True):
+            values = {"scale": (width / size[0], height / size[1]),
                       "noise_start": -1 if start is None else start // 3}  # fmt: skip
             if start is not None:
                 full_width, full_height = noise.full_size
@@ -144,7 +134,6 @@ class ViewReduction:
             array.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
-        self.sample_array.release()
         self.reduce_array.release()
 
 
@@ -181,26 +170,10 @@ def noise_pool_textures(context) -> tuple:
     return tuple(textures)
 
 
-def samples_size(drawn: tuple[int, int], step: int) -> tuple[int, int]:
-    """(width, height) of a view drawn at `drawn` sampled at every `step`-th row and column."""
-    return len(range(step // 2, drawn[0], step)), len(range(step // 2, drawn[1], step))
-
-
-def reduced_on_cpu(
-    bgra: NDArray[np.uint8],
-    size: tuple[int, int],
-    gain_of: Callable[[NDArray[np.uint8]], float] | None,
-    meter_step: int,
-) -> NDArray[np.uint8]:
-    """The passes' arithmetic on the CPU: a whole BGRA view `(H, W, 4)` exposed by the gain
-    `gain_of` gives for its pixels at every `meter_step`-th row and column (as RGB) and
-    area-resized to `size` (width, height; a view smaller than that is enlarged, as OpenCV's
-    INTER_AREA enlarges, bilinearly)."""
+def reduced_on_cpu(bgra: NDArray[np.uint8], size: tuple[int, int]) -> NDArray[np.uint8]:
+    """The pass's arithmetic on the CPU: a whole BGRA view `(H, W, 4)` area-resized to `size`
+    (width, height; a view smaller than that is enlarged, as OpenCV's INTER_AREA enlarges,
+    bilinearly)."""
     import cv2
 
-    if gain_of is not None:
-        start = meter_step // 2
-        gain = float(gain_of(bgra[start::meter_step, start::meter_step, 2::-1]))
-        if gain != 1.0:
-            bgra = cv2.convertScaleAbs(bgra, alpha=gain)
     return cv2.resize(bgra, tuple(size), interpolation=cv2.INTER_AREA)

@@ -66,7 +66,6 @@ from drivee2e_data.sim.gl_reduce import (
     atlas,
     noise_pool_textures,
     reduced_on_cpu,
-    samples_size,
 )
 from drivee2e_data.sim.gl_vertices import (
     FLOATS_PER_VERTEX,
@@ -498,8 +497,7 @@ class GLRenderer:
             self.sky_array = context.vertex_array(
                 self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
             )
-            self.reduction = ViewReduction(context, _program("reduce.vert", "sample.frag"),
-                                           _program("reduce.vert", "reduce.frag"),
+            self.reduction = ViewReduction(context, _program("reduce.vert", "reduce.frag"),
                                            self.sky_buffer)  # fmt: skip
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
@@ -558,9 +556,9 @@ class GLRenderer:
         # 0.2 ms for ten thousand pixels of a 1600x900 view, llvmpipe)
         self.gathers = not rasterises_on_cpu()
         self.gather: DepthGather | None = None
-        # views exposed and area-resized on the GPU (`reduced_views`) on a GPU; where GL
-        # draws on the CPU, by OpenCV from the whole view read back, as the shader does it (the
-        # shader's per-texel exposure and weights cost llvmpipe 3-5% more of a closed-loop step)
+        # views area-resized on the GPU (`reduced_views`) on a GPU; where GL draws on the CPU,
+        # by OpenCV from the whole view read back, as the shader does it (the shader's
+        # per-texel weights cost llvmpipe 3-5% more of a closed-loop step)
         self.reduces = not rasterises_on_cpu()
         info = context.info  # the largest framebuffer side: a layout of views keeps within it
         self.max_framebuffer_px = int(min(info["GL_MAX_TEXTURE_SIZE"],
@@ -1182,28 +1180,22 @@ class GLRenderer:
         views: Sequence[tuple[Sequence[float], Sequence[float], int, int]],
         far_m: float,
         size: tuple[int, int],
-        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
-        meter_step: int = 1,
         noise_starts: Sequence[int | None] | None = None,
         full_size: tuple[int, int] | None = None,
     ) -> list[NDArray[np.uint8]]:
         """Each of `views` (pybullet's `view` and `projection` matrices, width, height: as
-        `queue`'s) drawn with the clip's look, exposed and area-resized to `size` (width,
-        height): RGB `(H, W, 3)` each, a view of its BGRA read (`queue`'s colour). With
-        `noise_starts` (one per view; None: none), each view's night noise added after the
-        reduction, made at the camera's `full_size` (width, height) from the pool at its start
-        (`conditions.with_reduced_noise`; by the reduction's shader on a GPU: the same bytes where
-        the scale is a multiple of a quarter, as TCP's and the camera policy's are). With
-        `gain_of`, each drawn pixel's levels are multiplied by the gain it returns for the
-        view's pixels at every `meter_step`-th row and column (`rgb[s // 2 :: s, s // 2 ::
-        s]`), rounded and saturated (`conditions.expose`), before the reduction (OpenCV's
-        INTER_AREA; halves rounded up). On a GPU by shaders (`shaders/sample.frag`,
-        `reduce.frag`), only the meter's and `size`'s pixels read back, with two waits for the
-        GPU in all: every view is drawn before any is sampled, all are sampled into one
-        framebuffer and read at once, then all reduced into one (`gl_reduce.atlas`) and read
-        at once. Where GL draws on the CPU, or a view is smaller than
-        `size` (OpenCV's INTER_AREA then enlarges it bilinearly), each view is read whole and
-        resized by OpenCV, as the shaders do it (`gl_reduce.reduced_on_cpu`)."""
+        `queue`'s) drawn with the clip's look and area-resized to `size` (width, height): RGB
+        `(H, W, 3)` each, a view of its BGRA read (`queue`'s colour), each pixel the mean of the
+        drawn pixels under it (OpenCV's INTER_AREA; halves rounded up). With `noise_starts` (one
+        per view; None: none), each view's night noise added after the reduction, made at the
+        camera's `full_size` (width, height) from the pool at its start
+        (`conditions.with_reduced_noise`; by the reduction's shader on a GPU: the same bytes
+        where the scale is a multiple of a quarter, as TCP's and the camera policy's are). On
+        a GPU by a shader (`shaders/reduce.frag`), only `size`'s pixels read back, with one
+        wait for the GPU in all: every view is drawn, then all are reduced into one framebuffer
+        (`gl_reduce.atlas`) and read at once. Where GL draws on the CPU, or a view is smaller
+        than `size` (OpenCV's INTER_AREA then enlarges it bilinearly), each view is read whole
+        and resized by OpenCV, as the shader does it (`gl_reduce.reduced_on_cpu`)."""
         colour = (Read(0, 4, "f1"),)
         # a view smaller than `size` is enlarged, by OpenCV (the shader only averages)
         enlarged = any(size[0] > width or size[1] > height for _, _, width, height in views)
@@ -1216,35 +1208,26 @@ class GLRenderer:
                 for (view, projection, width, height), start in zip(views, starts, strict=True):
                     framebuffer, _ = self._draw(view, projection, width, height, False, far_m)
                     bgra = self.readback.read(framebuffer, colour, width, height, queued=False)
-                    rgb = reduced_on_cpu(bgra.result()[0], size, gain_of, meter_step)[..., 2::-1]
+                    rgb = reduced_on_cpu(bgra.result()[0], size)[..., 2::-1]
                     if start is not None:
                         rgb = with_reduced_noise(rgb, start, full_size[::-1])
                     reduced.append(rgb)
                 return reduced
             # each view drawn into a framebuffer of its own (the scene's rasterisation then
-            # the same as a view drawn alone, to the bit), then all sampled into one and
-            # reduced into one (`gl_reduce.atlas`): a bind and a read a stage
+            # the same as a view drawn alone, to the bit), then all reduced into one
+            # (`gl_reduce.atlas`): a bind and a read
             sources = []
             for slot, (view, projection, width, height) in enumerate(views):
                 framebuffer, _ = self._draw(view, projection, width, height, False, far_m,
                                             sampled=True, slot=slot)  # fmt: skip
                 sources.append(framebuffer.color_attachments[0])
             drawn = [(width, height) for _, _, width, height in views]
-            largest = self.max_framebuffer_px
-            gains = [1.0] * len(views)
-            if gain_of is not None:
-                sampled = atlas([samples_size(size, meter_step) for size in drawn], largest)
-                target = self._framebuffer(*sampled.size, ("bgra",))
-                self.reduction.sample(sources, target, sampled, meter_step)
-                (samples,) = self.readback.read(target, colour, *sampled.size).result()
-                gains = [float(gain_of(sampled.view_of(samples, k)[..., 2::-1]))
-                         for k in range(len(views))]  # fmt: skip
-            reduced = atlas([tuple(size)] * len(views), largest)
+            reduced = atlas([tuple(size)] * len(views), self.max_framebuffer_px)
             target = self._framebuffer(*reduced.size, ("bgra",))
             noise = None
             if any(start is not None for start in starts):
                 noise = NightNoise(starts, tuple(full_size), _noise_textures())
-            self.reduction.reduce(sources, drawn, target, reduced, gains, noise)
+            self.reduction.reduce(sources, drawn, target, reduced, noise)
             (pixels,) = self.readback.read(target, colour, *reduced.size).result()
             return [reduced.view_of(pixels, k)[..., 2::-1] for k in range(len(views))]
 

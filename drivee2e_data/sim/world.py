@@ -524,8 +524,6 @@ class World:
         self,
         views: Sequence[tuple[NDArray[np.float64], NDArray[np.float64], int, int, float]],
         size: tuple[int, int],
-        gain_of: Callable[[NDArray[np.uint8]], float] | None = None,
-        meter_step: int = 1,
         near_m: float = 0.1,
         far_m: float = 200.0,
         noise_starts: Sequence[int | None] | None = None,
@@ -533,10 +531,10 @@ class World:
     ) -> list[NDArray[np.uint8]]:
         """RGB `(H, W, 3)` at `size` (width, height) of each of `views` (eye, target, width,
         height, vertical field of view: `render`'s, z up), drawn by the GL renderer with the
-        clip's weather and light, each exposed by the gain `gain_of` returns for its pixels at
-        every `meter_step`-th row and column and area-resized to `size`, all the views drawn
-        before any is read, and with `noise_starts` the night's noise of cameras of `full_size`
-        added (`GLRenderer.reduced_views`): the closed-loop observer's cameras."""
+        clip's weather and light and area-resized to `size`, all the views drawn before any is
+        read, and with `noise_starts` the night's noise of cameras of `full_size` added
+        (`GLRenderer.reduced_views`): the closed-loop observer's cameras, before their
+        exposure (`sensors.camera.render_reduced`)."""
         if self.gl is None:
             raise ValueError("views reduced by the renderer (render_reduced) need the GL renderer")
         matrices = [
@@ -545,8 +543,7 @@ class World:
             for eye_m, target_m, width, height, vertical_fov_deg in views
         ]  # fmt: skip
         self.gl.sync(self.state, self.animations, self.scene_lights)
-        return self.gl.reduced_views(matrices, far_m, size, gain_of, meter_step, noise_starts,
-                                     full_size)  # fmt: skip
+        return self.gl.reduced_views(matrices, far_m, size, noise_starts, full_size)
 
     def _matrices(
         self,

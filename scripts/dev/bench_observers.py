@@ -5,16 +5,14 @@ process count, the mean ms a step, the host's steps a second, and both against o
 alone (the reference, in the same run).
 
     python scripts/dev/bench_observers.py DATA [--processes 1 4 8 16] [--steps 60]
-        [--input 256x144] [--supersample 2] [--cameras 3] [--no-shadows] [--no-meter]
+        [--input 256x144] [--supersample 2] [--cameras 3] [--no-shadows]
         [--turns K] [--profile] [--network CHECKPOINT [--rows 8 4]]
 
 DATA holds scenario bundles (`drivee2e synth`). Where the steps a second stop growing with the
 processes, the GPU (or the cores) is the limit: a host's closed loop cannot go faster than
 that whatever the agent (docs/benchmarks.md, closed loop). `--cameras 1` draws the front camera
 alone, `--no-shadows` every clip without the sun's shadow map (what a view and the shadow pass
-cost, to find where a step's GPU time goes; no agent sees such steps); `--no-meter` without
-the exposure meter (its sample pass and the first of a step's two waits for the GPU);
-`--turns K` lets at most K processes observe at once (a semaphore around each step: whether
+cost, to find where a step's GPU time goes; no agent sees such steps); `--turns K` lets at most K processes observe at once (a semaphore around each step: whether
 fewer GL contexts submitting at a time give the GPU more steps a second). Each row gives the
 CPU time of a step too (the processes' own, `time.process_time`): where the steps slow down
 with more processes but their CPU time does not grow, they wait (for the GPU); `--profile`
@@ -44,7 +42,7 @@ FRONT = ("CAM_FRONT_LEFT", "CAM_FRONT", "CAM_FRONT_RIGHT")
 
 def _drive(
     data: str, clip: str, steps: int, input_size, supersample: float, cameras, shadows: bool,
-    meter: bool, turns, barrier, out, profiled: bool = False,
+    turns, barrier, out, profiled: bool = False,
 ) -> None:  # fmt: skip
     """One process: the world of `clip`, a step to warm up, then `steps` steps timed after every
     process is ready; its seconds, its CPU seconds, the drawn size and (`profiled`) its
@@ -61,13 +59,6 @@ def _drive(
 
             world.look = dataclasses.replace(world.look, shadows=False)
             world.gl.set_look(world.look)
-        if not meter:
-            render_reduced = world.render_reduced
-
-            def unmetered(views, size, gain_of=None, *args, **kwargs):
-                return render_reduced(views, size, None, *args, **kwargs)
-
-            world.render_reduced = unmetered
         observer = SensorObserver(world, cameras, (1600, 900), input_size, supersample)
         drive.observe(observer, 0)
         barrier.wait()
@@ -136,7 +127,7 @@ def _network(checkpoint: str, rows: tuple[int, ...], barrier, stop, out) -> None
 
 
 def run(data: Path, clips: list[str], processes: int, steps: int, input_size, supersample,
-        cameras=FRONT, shadows: bool = True, meter: bool = True, turns: int = 0,
+        cameras=FRONT, shadows: bool = True, turns: int = 0,
         profile: bool = False, network: Path | None = None, rows=(8,)):  # fmt: skip
     """(mean seconds a step per process, mean CPU seconds a step, steps a second of them all,
     drawn size, the first process's profile or "", the network's timings or None)."""
@@ -152,7 +143,7 @@ def run(data: Path, clips: list[str], processes: int, steps: int, input_size, su
     workers = [
         context.Process(target=_drive, args=(str(data), clips[k % len(clips)], steps,
                                              input_size, supersample, cameras, shadows,
-                                             meter, semaphore, barrier, out,
+                                             semaphore, barrier, out,
                                              profile and k == 0))
         for k in range(processes)
     ]  # fmt: skip
@@ -183,7 +174,6 @@ def main() -> None:
     parser.add_argument("--supersample", type=float, default=2.0)
     parser.add_argument("--cameras", type=int, choices=(1, 3), default=3)
     parser.add_argument("--no-shadows", action="store_true")
-    parser.add_argument("--no-meter", action="store_true")
     parser.add_argument("--turns", type=int, default=0, help="at most this many observing at once")
     parser.add_argument("--profile", action="store_true", help="cProfile the first process")
     parser.add_argument("--network", type=Path, help="a TCP checkpoint served beside them")
@@ -195,7 +185,7 @@ def main() -> None:
     cameras = FRONT if args.cameras == 3 else ("CAM_FRONT",)
     print(f"input {args.input}, supersample {args.supersample}, {args.steps} steps a process, "
           f"{len(cameras)} cameras, shadows {'off' if args.no_shadows else 'as the clip'}, "
-          f"meter {'off' if args.no_meter else 'on'}, turns {args.turns or 'all'}")  # fmt: skip
+          f"turns {args.turns or 'all'}")  # fmt: skip
     print("| processes | drawn | ms a step | CPU ms a step | steps a second "
           "| against one process (step, host) |")  # fmt: skip
     print("|---|---|---|---|---|---|")
@@ -203,7 +193,7 @@ def main() -> None:
     for processes in args.processes:
         per_step, cpu, rate, drawn, report, timings = run(
             args.data, clips, processes, args.steps, input_size, args.supersample, cameras,
-            not args.no_shadows, not args.no_meter, args.turns, args.profile, args.network,
+            not args.no_shadows, args.turns, args.profile, args.network,
             args.rows,
         )  # fmt: skip
         if reference is None:

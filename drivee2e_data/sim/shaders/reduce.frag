@@ -1,20 +1,17 @@
 #version 330
-// A view exposed and reduced on the GPU as the CPU path does it (`conditions.expose`, then
-// OpenCV's INTER_AREA): each drawn pixel's 8-bit levels times `gain`, rounded and saturated,
-// then each output pixel the mean of the drawn pixels under its area, those it covers in part
-// weighted by the part, rounded to the nearest level; at night the camera's noise made at its
-// full size and averaged over the same area added, clipped and rounded
-// (`conditions.with_reduced_noise`).
+// A view reduced on the GPU as the CPU path does it (OpenCV's INTER_AREA): each output pixel
+// the mean of the drawn pixels' 8-bit levels under its area, those it covers in part weighted
+// by the part, rounded to the nearest level; at night the camera's noise made at its full size
+// and averaged over the same area added, clipped and rounded (`conditions.with_reduced_noise`).
 // Uniforms: source (the drawn view's colour, texel for texel), scale (drawn pixels per output
-// pixel along x and y, 1 or more), gain (the camera's exposure; 1: as drawn), origin (the
-// view's lower left pixel in the framebuffer written), noise_start (the texel of noise_pool
+// pixel along x and y, 1 or more), origin (the view's lower left pixel in the framebuffer
+// written), noise_start (the texel of noise_pool
 // holding the view's first full-size pixel; -1: no noise), noise_pool (the pool's int8 levels
 // three a texel from the view's phase on, `gl_reduce.NOISE_TEXTURE_WIDTH` texels a row),
 // full_width (the camera's full width in pixels), noise_scale (full-size pixels per output
 // pixel along x and y).
 uniform sampler2D source;
 uniform vec2 scale;
-uniform float gain;
 uniform ivec2 origin;
 uniform int noise_start;
 uniform isampler2D noise_pool;
@@ -62,7 +59,7 @@ void main() {
         for (int column = first.x; column <= last.x; ++column) {
             float width = min(float(column + 1), high.x) - max(float(column), low.x);
             vec4 drawn = texelFetch(source, ivec2(column, row), 0);
-            vec4 levels = min(roundEven(drawn * (255.0 * gain)), vec4(255.0));
+            vec4 levels = roundEven(drawn * 255.0);
             total += (width * height) * levels;
         }
     }
