@@ -168,3 +168,75 @@ def test_a_server_forked_from_the_fork_server_ends_with_the_command_it_is_given(
         if server.exitcode is None:
             server.terminate()
         command.kill()
+
+
+class _ExampleToy(_ServedToy):
+    """`_ServedToy` offering the example inputs a server warms up on."""
+
+    def example_inputs(self) -> dict[str, np.ndarray]:
+        return {"x": np.zeros(512, np.float32)}
+
+
+def _example_factory(name: str, checkpoint: object, network: bool = True) -> _ExampleToy:
+    return _ExampleToy()
+
+
+def test_a_server_warms_up_on_the_agents_example_before_its_first_request(tmp_path) -> None:
+    """`warm_up` runs one batch of the server's rows of the agent's `example_inputs()` (a GPU's
+    first batch records its CUDA graph), and nothing for an agent without them; a server runs
+    it before its first request (its account's `warm_up_s`) and then answers as before."""
+    import json
+
+    from drivee2e_data.evaluate.policy_server import ServedAgent, ServerHandle, serve, warm_up
+    from drivee2e_data.processes import SPAWN
+
+    with_example, without = _ExampleToy(), _ServedToy()
+    assert warm_up(with_example, 4) and with_example.sizes == [4]
+    assert not warm_up(without, 4) and without.sizes == []
+    handle = ServerHandle(SPAWN.Queue(), (SPAWN.Queue(),))
+    stats = tmp_path / "server.json"
+    server = SPAWN.Process(
+        target=serve,
+        args=("toy", None, "cpu", handle.requests, handle.replies, _example_factory, 1, 2,
+              str(stats)),
+        daemon=True,
+    )  # fmt: skip
+    server.start()
+    inputs = _inputs(1)
+    try:
+        plan = ServedAgent(_ServedToy(), handle, 0).act(inputs[0]["x"]).xy_m
+    finally:
+        handle.requests.put(None)
+        server.join(timeout=60)
+    assert np.array_equal(plan, batch_plans(_Toy(), inputs, 2)[0])
+    account = json.loads(stats.read_text())
+    assert account["warm_up_s"] > 0.0 and account["requests"] == 1
+
+
+@pytest.mark.parametrize("name", ["camera", "tcp"])
+def test_the_camera_agents_examples_have_their_inputs_shapes_and_types(name: str) -> None:
+    """A camera agent's `example_inputs()` are arrays of the shapes and types its
+    `model_inputs` makes of an observation (the warm-up batch records the graph the
+    observations' batches replay)."""
+    import importlib
+
+    from drivee2e_data.evaluate.agent import Observation
+
+    module = importlib.import_module(f"drivee2e_data.agents.{name}")
+    agent_class = module.CameraAgent if name == "camera" else module.TCPAgent
+    agent = agent_class.__new__(agent_class)  # no checkpoint: the inputs need none
+    agent.image_size = (1600, 900)
+    width, height = module.INPUT_SIZE
+    rng = np.random.default_rng(0)
+    pixels = {c: rng.integers(0, 256, (3, height, width), dtype=np.uint8)
+              for c in agent.sensors}  # fmt: skip
+    observation = Observation(
+        step=0, t_s=0.0, xy_m=np.zeros(2), yaw_rad=0.0, lat_lon_alt=np.zeros(3),
+        speed_mps=4.0, imu_acceleration_mps2=np.zeros(3), imu_angular_velocity_radps=np.zeros(3),
+        ego_status=np.zeros(10), history_xy_m=np.zeros((4, 2)), history_mask=np.ones(4, bool),
+        command=2, target_point_m=np.array([12.0, 1.0]), pixels=pixels,
+    )  # fmt: skip
+    made, example = agent.model_inputs(observation), agent.example_inputs()
+    assert made.keys() == example.keys()
+    for key in made:
+        assert (made[key].shape, made[key].dtype) == (example[key].shape, example[key].dtype), key

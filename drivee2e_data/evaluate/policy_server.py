@@ -16,7 +16,8 @@ time, the gathering's.
 
 An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
 observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
-ego frame); `agents/camera.py` and `agents/tcp.py` do. Batched and unbatched runs of the
+ego frame); `agents/camera.py` and `agents/tcp.py` do, and their `example_inputs()` (arrays of
+those shapes and types) give the server a batch to run before the first request (`warm_up`). Batched and unbatched runs of the
 network differ only in the device's arithmetic (a kernel may sum in another order for another
 batch size: 1e-7 m here on the CPU), so the episodes are the same (tested on the CPU). A server
 runs every batch at one size, `BATCH_ROWS` whatever the number of workers (`batch_plans`: the
@@ -81,11 +82,13 @@ def worker_niceness() -> int:
 
 @dataclass
 class ServerStats:
-    """What a server's batches cost, summed (seconds): from a batch's first request taken to
-    its last (`gather_s`), the network's (`forward_s`: stacking, the batch's forwards and the
-    plans back), and the answers' sending (`reply_s`)."""
+    """What a server's batches cost, summed (seconds): its warm-up batch before the first
+    request (`warm_up_s`, `warm_up`), from a batch's first request taken to its last
+    (`gather_s`), the network's (`forward_s`: stacking, the batch's forwards and the plans
+    back), and the answers' sending (`reply_s`)."""
 
     device: str = ""
+    warm_up_s: float = 0.0
     requests: int = 0
     batches: int = 0
     forwards: int = 0
@@ -151,15 +154,18 @@ def serve(
     if device.startswith("cuda"):  # its GPU current, so nothing it starts lands on cuda:0
         torch.cuda.set_device(device)
     agent, failure = None, ""
+    stats = ServerStats(device=device)
     try:
         agent = agent_factory(agent_name, None if checkpoint is None else Path(checkpoint))
+        began = time.perf_counter()
+        warm_up(agent, batch_shape)
+        stats.warm_up_s = time.perf_counter() - began
     except Exception as error:  # every episode then ends with this reason, none waits
-        failure = f"the policy server could not build agent {agent_name!r}: {error}"
+        agent, failure = None, f"the policy server could not build agent {agent_name!r}: {error}"
     slots = SlotReader()
     # a worker asks once at a time: no more requests can come once every worker served has
     most = max(1, min(MAX_BATCH, served))
     gather_s = gather_seconds()
-    stats = ServerStats(device=device)
     while True:
         first = requests.get()
         if first is None:
@@ -205,6 +211,19 @@ def serve(
         stats.gather_s += gathered - taken
         stats.forward_s += planned - gathered
         stats.reply_s += time.perf_counter() - planned
+
+
+def warm_up(agent: Any, shape: int) -> bool:
+    """Run one batch of `shape` rows of the agent's `example_inputs()` (one observation's
+    inputs of the shapes and types `model_inputs` gives) through `batch_plans`, where it offers
+    them: a GPU's first batch records its CUDA graph (0.3-0.4 s on an H200,
+    `scripts/dev/profile_server_start.py`), which the episodes' first steps waited for when
+    the first request made it. Returns whether it ran one."""
+    example = getattr(agent, "example_inputs", None)
+    if not callable(example):
+        return False
+    batch_plans(agent, [example()], shape)
+    return True
 
 
 def batch_plans(agent: Any, inputs: list[dict[str, np.ndarray]], shape: int) -> np.ndarray:

@@ -167,8 +167,8 @@ def main() -> None:
     servers = server_rows(args.runs)
     if servers:
         print("\n| run | server | requests | batches | requests a batch | gathering ms a batch "
-              "| network ms a batch | answering ms a batch |")  # fmt: skip
-        print("|---|---|---|---|---|---|---|---|")
+              "| network ms a batch | answering ms a batch | warm-up s |")  # fmt: skip
+        print("|---|---|---|---|---|---|---|---|---|")
         print("\n".join(servers))
     if args.timeline is not None:
         draw_timeline(args.runs, args.data, args.timeline)
@@ -183,7 +183,8 @@ def server_rows(runs: list[Path]) -> list[str]:
             s = json.loads(path.read_text())
             rows.append(f"| {run.name} | {s['device']} | {s['requests']} | {s['batches']} "
                         f"| {s['requests_per_batch']:.2f} | {s['gather_ms_per_batch']:.2f} "
-                        f"| {s['forward_ms_per_batch']:.2f} | {s['reply_ms_per_batch']:.2f} |")  # fmt: skip
+                        f"| {s['forward_ms_per_batch']:.2f} | {s['reply_ms_per_batch']:.2f} "
+                        f"| {s.get('warm_up_s', 0.0):.2f} |")  # fmt: skip
     return rows
 
 
