@@ -163,6 +163,15 @@ def observation_inputs(
     return torch.from_numpy(images)[None], vector
 
 
+def example_inputs(input_size: tuple[int, int]) -> dict[str, np.ndarray]:
+    """A front-camera policy's inputs of one observation at `input_size` (width, height) as its
+    agent's `model_inputs` gives them (`observation_inputs`), all zeros: what a policy server
+    runs once before its first request (`policy_server.warm_up`)."""
+    width, height = input_size
+    return {"images": np.zeros((len(FRONT_CAMERAS), 3, height, width), np.uint8),
+            "vector": np.zeros(6, np.float32)}  # fmt: skip
+
+
 def trainable_size(
     dataset: DriveE2EDataset | FeatureCache, input_size: tuple[int, int], name: str
 ) -> list[int]:
@@ -270,11 +279,8 @@ class CameraAgent:
         return {"images": images[0].numpy(), "vector": vector[0].numpy()}
 
     def example_inputs(self) -> dict[str, np.ndarray]:
-        """Inputs of the shapes and types `model_inputs` gives (zeros): what a policy server
-        runs once before its first request (`policy_server.warm_up`)."""
-        width, height = INPUT_SIZE
-        return {"images": np.zeros((len(FRONT_CAMERAS), 3, height, width), np.uint8),
-                "vector": np.zeros(6, np.float32)}  # fmt: skip
+        """Zeros of its inputs' shapes and types (`example_inputs`)."""
+        return example_inputs(INPUT_SIZE)
 
     def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
         """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""

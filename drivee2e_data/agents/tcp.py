@@ -251,11 +251,8 @@ class TCPAgent:
         return {"images": images[0].numpy(), "vector": vector[0].numpy()}
 
     def example_inputs(self) -> dict[str, np.ndarray]:
-        """Inputs of the shapes and types `model_inputs` gives (zeros): what a policy server
-        runs once before its first request (`policy_server.warm_up`)."""
-        width, height = INPUT_SIZE
-        return {"images": np.zeros((len(FRONT_CAMERAS), 3, height, width), np.uint8),
-                "vector": np.zeros(6, np.float32)}  # fmt: skip
+        """Zeros of its inputs' shapes and types (`camera.example_inputs`)."""
+        return camera.example_inputs(INPUT_SIZE)
 
     def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
         """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""

@@ -81,8 +81,8 @@ class Exposure:
 
 def meter_step(width: int) -> int:
     """The pixels between two of the exposure meter's samples along a row (and a column) of an
-    image `width` wide: about `METER_COLUMNS` across. An image of those samples alone (every
-    step-th pixel from `step // 2`) is metered with a step of 1: the same samples."""
+    image `width` wide: about `METER_COLUMNS` across (1 for an image narrower than that: every
+    pixel, as the closed-loop observer's reduced views are metered)."""
     return max(1, round(width / METER_COLUMNS))
 
 

@@ -160,11 +160,6 @@ def _context():
         return None
 
 
-def _libegl():
-    """libEGL through ctypes (to save and restore another library's current context), or None."""
-    return egl_context.libegl()
-
-
 GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
 GL_DEPTH_BUFFER_BIT, GL_NEAREST = 0x100, 0x2600
 
@@ -174,7 +169,7 @@ def _depth_copy() -> Callable[[object, object, int], None] | None:
     """A function copying the depth of one moderngl framebuffer into another's (both square, of
     the size given) with glBlitFramebuffer, fetched through EGL (moderngl's copies take colour
     only); None where EGL does not give it. The target is left bound."""
-    egl = _libegl()
+    egl = egl_context.libegl()
     if egl is None:
         return None
     blit_address = egl.eglGetProcAddress(b"glBlitFramebuffer")
@@ -199,7 +194,7 @@ def current(context) -> Iterator[None]:
     whatever EGL context was current before (pybullet's EGL plugin's, in a process that has both
     kinds of world) made current again after it: the plugin never makes its own current again,
     and would draw into ours."""
-    egl = _libegl()
+    egl = egl_context.libegl()
     saved = None
     if egl is not None and egl.eglGetCurrentContext():
         saved = egl_context.current_egl(egl)
@@ -245,7 +240,7 @@ def release_context() -> bool:
     _LOOKS.clear()
     if context is None:
         return False
-    egl = _libegl()
+    egl = egl_context.libegl()
     display = None
     if egl is not None:
         with context:
