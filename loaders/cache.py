@@ -43,8 +43,9 @@ from drivee2e_data.logs.reader import LogReader
 from drivee2e_data.processes import process_running
 
 CACHE_FOLDER = "features"
-# what a clip's folder holds and how: a change here makes every cache another folder
-CACHE_VERSION = 1
+# what a clip's folder holds and how: a change here makes every cache another folder (2: images
+# decoded only by JPEG reductions that divide the logged size, `images.reduction`)
+CACHE_VERSION = 2
 FRAMES_FILE = "frames.npy"
 # the fields planners of the ego's state and the open-loop metrics read, all fixed in shape
 EGO_FIELDS = (

@@ -1,18 +1,22 @@
 """Decoding one frame's six JPEGs: OpenCV at full and half size (one thread, the reference:
-full size) and, where CUDA is present, one nvJPEG batch through torchvision.
+full size), the Dataset's decode to `--input` (`loaders.images.decode_cpu`: the largest JPEG
+reduction that divides the logged size, then an area resize) beside the 1/8 reduction resized
+the same way (what it did before 1/8 had to divide the size), and, where CUDA is present, one
+nvJPEG batch through torchvision.
 
-    python scripts/dev/bench_decode.py LOG.mcap
+    python scripts/dev/bench_decode.py LOG.mcap [--input 128x72]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 
 import cv2
 import numpy as np
 import torch
 
+from drivee2e_data.loaders.images import decode_cpu
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
 
@@ -27,10 +31,17 @@ def per_frame_ms(frames: list, decode) -> float:  # type: ignore[no-untyped-def]
 
 
 def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("log")
+    parser.add_argument("--input", default="128x72", help="the Dataset's image size, WxH")
+    args = parser.parse_args()
+    target = tuple(int(v) for v in args.input.split("x"))
     cv2.setNumThreads(1)
-    with LogReader(sys.argv[1]) as log:
+    with LogReader(args.log) as log:
         names = [topics.image_topic(c) for c in log.cameras]
-        frames = [[m.data for m in log.frame(f, names).values()] for f in log.frames]
+        frames = [[m.data for m in log.frame(f, names).values()] for f in log.sensor_frames]
+        calibration = log.rig["cameras"][log.cameras[0]]
+        full = (int(calibration["width"]), int(calibration["height"]))
     rows = {
         "OpenCV, full size (reference)": per_frame_ms(
             frames,
@@ -40,6 +51,20 @@ def main() -> int:
             frames,
             lambda js: [
                 cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_REDUCED_COLOR_2) for j in js
+            ],
+        ),
+        f"the Dataset's decode to {args.input}": per_frame_ms(
+            frames, lambda js: [decode_cpu(j, full, target) for j in js]
+        ),
+        f"1/8 reduction, area-resized to {args.input}": per_frame_ms(
+            frames,
+            lambda js: [
+                cv2.resize(
+                    cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_REDUCED_COLOR_8),
+                    target,
+                    interpolation=cv2.INTER_AREA,
+                )
+                for j in js
             ],
         ),
     }
@@ -54,11 +79,11 @@ def main() -> int:
 
         rows[f"nvJPEG batch on {torch.cuda.get_device_name()}"] = per_frame_ms(tensors, on_gpu)
     reference = next(iter(rows.values()))
-    print(f"{len(frames)} frames of {len(frames[0])} JPEGs from {sys.argv[1]}")
+    print(f"{len(frames)} frames of {len(frames[0])} JPEGs from {args.log}")
     for label, ms in rows.items():
         print(f"{label:45s} {ms:7.2f} ms/frame  {reference / ms:5.1f}x")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

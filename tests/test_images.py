@@ -1,0 +1,80 @@
+"""JPEG decoding for samples (`loaders/images.py`): an image decoded smaller than logged is the
+area reduction of the logged image, on the CPU and by the GPU path's resize."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from drivee2e_data.loaders.images import area_resize, area_weights, decode_cpu, reduction
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 10.0 * np.log10(255.0**2 / max(mse, 1e-12))
+
+
+def crosswalk(width: int = 1600, height: int = 900) -> np.ndarray:
+    """A grey road under a blue sky with white stripes across its lower third, 6 px high and
+    8 px apart, as a crosswalk seen ahead: BGR uint8 `(H, W, 3)`."""
+    image = np.full((height, width, 3), (150, 120, 90), np.uint8)
+    image[height // 2 :] = (70, 72, 75)
+    for top in range(2 * height // 3, height, 14):
+        image[top : top + 6, width // 8 : 7 * width // 8] = (235, 235, 235)
+    return image
+
+
+def test_a_reduction_divides_the_logged_size() -> None:
+    assert reduction((1600, 900), (128, 72)) == 4  # 900 is no multiple of 8
+    assert reduction((1600, 896), (128, 72)) == 8
+    assert reduction((1600, 900), (256, 144)) == 4
+    assert reduction((1600, 900), (800, 450)) == 2
+    assert reduction((320, 180), (80, 45)) == 4
+    assert reduction((1600, 900), (1600, 900)) == 1
+    assert reduction((1601, 900), (128, 72)) == 1  # no reduction divides an odd width
+
+
+def test_the_decoded_image_is_the_area_reduction_of_the_logged_one() -> None:
+    """On stripes at the image's foot, where the 1/8 reduction's partial row of blocks (113
+    rows for 112.5) stretched the image by half a row."""
+    ok, jpeg = cv2.imencode(".jpg", crosswalk(), [cv2.IMWRITE_JPEG_QUALITY, 85])
+    assert ok
+    full = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+    expected = cv2.resize(full, (128, 72), interpolation=cv2.INTER_AREA)[..., ::-1]
+    decoded = np.moveaxis(decode_cpu(jpeg.tobytes(), (1600, 900), (128, 72)), 0, -1)
+    assert psnr(decoded, expected) > 38.0  # 39.9
+    # the stripes tell the two decodes apart: 1/8, area-resized, lies far from the reduction
+    eighth = cv2.imdecode(jpeg, cv2.IMREAD_REDUCED_COLOR_8)
+    assert eighth.shape[:2] == (113, 200)
+    stretched = cv2.resize(eighth, (128, 72), interpolation=cv2.INTER_AREA)[..., ::-1]
+    assert psnr(stretched, expected) < 31.0  # 29.4
+
+
+def test_area_weights_share_each_source_pixel_by_its_overlap() -> None:
+    weights = area_weights(5, 2, torch.device("cpu"))  # intervals [0, 2.5) and [2.5, 5)
+    expected = torch.tensor([[1, 1, 0.5, 0, 0], [0, 0, 0.5, 1, 1]]) / 2.5
+    assert torch.allclose(weights, expected)
+    assert torch.allclose(area_weights(900, 72, torch.device("cpu")).sum(1), torch.ones(72))
+
+
+@pytest.mark.parametrize(
+    ("source", "target"),
+    [
+        ((1600, 900), (128, 72)),
+        ((400, 225), (128, 72)),
+        ((320, 180), (80, 45)),
+        ((1600, 900), (256, 144)),
+    ],
+)
+def test_area_resize_gives_opencvs_area_reduction(source, target) -> None:
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, (source[1], source[0], 3), dtype=np.uint8)
+    image[source[1] // 2 :] = crosswalk(*source)[source[1] // 2 :]  # smooth and sharp parts
+    expected = cv2.resize(image, target, interpolation=cv2.INTER_AREA)
+    reduced = area_resize(torch.from_numpy(np.ascontiguousarray(np.moveaxis(image, -1, 0))), target)
+    assert reduced.dtype == torch.uint8 and tuple(reduced.shape) == (3, target[1], target[0])
+    difference = np.abs(np.moveaxis(reduced.numpy(), 0, -1).astype(int) - expected.astype(int))
+    assert difference.max() <= 1
+    assert np.mean(difference > 0) < 0.01
