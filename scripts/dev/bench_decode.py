@@ -2,7 +2,8 @@
 full size), the Dataset's decode to `--input` (`loaders.images.decode_cpu`: the largest JPEG
 reduction that divides the logged size, then an area resize) beside the 1/8 reduction resized
 the same way (what it did before 1/8 had to divide the size), and, where CUDA is present, one
-nvJPEG batch through torchvision.
+nvJPEG batch through torchvision, also resized to `--input` as `decode_batch` resizes (an area
+reduction) and as it did before (an antialiased bilinear), each against the CPU's decode (PSNR).
 
     python scripts/dev/bench_decode.py LOG.mcap [--input 128x72]
 """
@@ -16,7 +17,7 @@ import cv2
 import numpy as np
 import torch
 
-from drivee2e_data.loaders.images import decode_cpu
+from drivee2e_data.loaders.images import decode_batch, decode_cpu
 from drivee2e_data.logs import topics
 from drivee2e_data.logs.reader import LogReader
 
@@ -78,11 +79,46 @@ def main() -> int:
             torch.cuda.synchronize()
 
         rows[f"nvJPEG batch on {torch.cuda.get_device_name()}"] = per_frame_ms(tensors, on_gpu)
+        rows[f"nvJPEG batch, area-resized to {args.input} (decode_batch)"] = per_frame_ms(
+            tensors, lambda js: synchronized(decode_batch(js, full, target, "cuda"))
+        )
+        rows[f"nvJPEG batch, bilinear (antialiased) to {args.input}"] = per_frame_ms(
+            tensors, lambda js: synchronized(bilinear(js, target))
+        )
     reference = next(iter(rows.values()))
     print(f"{len(frames)} frames of {len(frames[0])} JPEGs from {args.log}")
     for label, ms in rows.items():
-        print(f"{label:45s} {ms:7.2f} ms/frame  {reference / ms:5.1f}x")
+        print(f"{label:60s} {ms:7.2f} ms/frame  {reference / ms:5.1f}x")
+    if torch.cuda.is_available():  # the GPU's images against the Dataset's on the CPU
+        cpu = [torch.from_numpy(decode_cpu(j, full, target)) for js in frames for j in js]
+        for label, decode in (
+            ("decode_batch (area)", lambda js: decode_batch(js, full, target, "cuda")),
+            ("bilinear, antialiased", lambda js: bilinear(js, target)),
+        ):
+            gpu = [image.cpu() for js in tensors for image in decode(js)]
+            values = [psnr(a.numpy(), b.numpy()) for a, b in zip(gpu, cpu, strict=True)]
+            print(f"{label:25s} against the CPU's decode: PSNR min {min(values):.1f}, median "
+                  f"{np.median(values):.1f} dB over {len(values)} images")  # fmt: skip
     return 0
+
+
+def synchronized(images: torch.Tensor) -> torch.Tensor:
+    torch.cuda.synchronize()
+    return images
+
+
+def bilinear(jpegs: list, target: tuple[int, int]) -> torch.Tensor:
+    """The GPU path's resize until 2026-11-30: torchvision's antialiased bilinear."""
+    from torchvision.io import decode_jpeg
+    from torchvision.transforms.v2.functional import resize
+
+    images = decode_jpeg(jpegs, device="cuda")
+    return torch.stack([resize(image, [target[1], target[0]], antialias=True) for image in images])
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
+    return 10.0 * np.log10(255.0**2 / max(mse, 1e-12))
 
 
 if __name__ == "__main__":
