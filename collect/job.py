@@ -26,7 +26,7 @@ from drivee2e_data.logs.writer import LogWriter
 from drivee2e_data.sensors import camera_gpu
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE, SEMANTIC_CLASSES
 from drivee2e_data.sensors.suite import STAGES, SensorFrame, SensorSuite, StateFrame, SuiteOptions
-from drivee2e_data.sim import gl_renderer, reuse
+from drivee2e_data.sim import gl_context, reuse
 from drivee2e_data.sim.world import World, world_for
 
 LOGS_FOLDER = "logs"
@@ -106,12 +106,12 @@ def _close_world() -> None:
 
 def release_world() -> None:
     """Close this process's world and give its GL context back to the driver
-    (`gl_renderer.release_context`), where a pool worker has nothing left to do before the run
+    (`gl_context.release_context`), where a pool worker has nothing left to do before the run
     ends; a later clip sets a world up and makes a context again."""
     global _world
     _close_world()
     _world = None
-    gl_renderer.release_context()
+    gl_context.release_context()
 
 
 def remove_world_files() -> None:
@@ -192,7 +192,7 @@ def open_clip(
         "sensor_hz": str(options.sensor_hz),
     }
     if world.renderer == "gl":  # which driver drew the images (Mesa versions differ in pixels)
-        collection["gl_driver"] = gl_renderer.gl_driver()
+        collection["gl_driver"] = gl_context.gl_driver()
     labels = label_metadata(suite, options) if options.camera_labels else None
     if stage_seconds is not None:
         stage_seconds["setup"] = stage_seconds.get("setup", 0.0) + time.perf_counter() - tick

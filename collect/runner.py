@@ -64,7 +64,7 @@ from drivee2e_data.processes import (
 )
 from drivee2e_data.scenario import Scenario
 from drivee2e_data.sensors.ego_state import EgoMotion, ego_motion
-from drivee2e_data.sim import egl_devices, gl_renderer, reuse
+from drivee2e_data.sim import egl_devices, gl_context, reuse
 from drivee2e_data.sim.egl_devices import contexts_at_once
 from drivee2e_data.sim.twin import mesh_folder
 
@@ -462,7 +462,7 @@ def _init_worker(
     egl_devices.use_device(egl_devices.device_for_worker(worker, gpus))
     if make_context:  # `context_at_start`, a few workers at a time (`contexts_at_once`)
         with context_slots if context_slots is not None else contextlib.nullcontext():
-            gl_renderer.gl_available()
+            gl_context.gl_available()
     # one thread each for OpenCV too (llvmpipe's, OpenBLAS's, torch's: `one_thread_per_worker`;
     # llvmpipe with a thread per core and a worker per core: 1.43 -> 1.56 frames/s on 2 cores)
     import cv2

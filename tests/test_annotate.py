@@ -229,7 +229,7 @@ def test_a_box_half_hidden_behind_a_wall_reads_about_half_visible(renderer, car_
     depth: float from the GL renderer, 16-bit from pybullet's). The car 7 m ahead fills enough of
     the image to be sampled on a grid (`annotate._covered_pixels`), and reads the same."""
     from drivee2e_data.sensors.annotate import DEPTH_SAMPLES, projected_area
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     if renderer == "gl" and not gl_available():
         pytest.skip("no OpenGL context (EGL) here")
@@ -266,7 +266,7 @@ def test_a_frames_boxes_are_the_same_from_depth_gathered_at_their_pixels(tmp_pat
     from drivee2e_data.sensors import suite as suite_module
     from drivee2e_data.sensors.annotate import visible_shares
     from drivee2e_data.sensors.suite import SensorSuite, SuiteOptions
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     if not gl_available():
         pytest.skip("no OpenGL context (EGL) here")

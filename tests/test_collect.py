@@ -404,7 +404,7 @@ def test_a_pool_worker_reports_each_unit_as_it_ends_not_when_its_job_does(monkey
 
 
 def test_a_log_names_the_gl_driver_that_drew_it(collected_root: Path):
-    from drivee2e_data.sim.gl_renderer import gl_driver
+    from drivee2e_data.sim.gl_context import gl_driver
 
     for path in sorted((collected_root / "logs").glob("*.mcap")):
         with LogReader(path) as log:

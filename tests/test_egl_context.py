@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.sim import egl_context, gl_renderer
+from drivee2e_data.sim import egl_context, gl_context
 from drivee2e_data.sim.egl_context import PRIORITY_VARIABLE, Priority
 
-needs_gl = pytest.mark.skipif(not gl_renderer.gl_available(), reason="no OpenGL context (EGL)")
+needs_gl = pytest.mark.skipif(not gl_context.gl_available(), reason="no OpenGL context (EGL)")
 
 
 def test_the_variable_names_the_priority_and_a_bad_value_names_the_variable(monkeypatch):

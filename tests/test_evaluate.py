@@ -22,7 +22,7 @@ from drivee2e_data import splits, store
 from drivee2e_data.cli import main
 from drivee2e_data.evaluate.runner import EPISODES_FOLDER
 from drivee2e_data.sim.egl_context import Priority, requested_priority
-from drivee2e_data.sim.gl_renderer import context_made
+from drivee2e_data.sim.gl_context import context_made
 from tests.conftest import copy_clips
 
 SCORE_COLUMNS = ("status", "success", "route_completion", "penalty", "driving_score", "events")
@@ -348,7 +348,7 @@ def test_only_a_served_camera_agent_on_gpus_makes_contexts_a_few_at_a_time() -> 
 def test_a_worker_given_context_slots_makes_its_context_with_one_before_any_episode() -> None:
     from drivee2e_data.evaluate import preload, runner
     from drivee2e_data.processes import worker_pool
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     if not gl_available():
         pytest.skip("no OpenGL context can be made here")

@@ -8,7 +8,7 @@ import pytest
 
 from drivee2e_data.hdmap import Crosswalk, StopLine
 from drivee2e_data.sim.fidelity import Grid, element_iou
-from drivee2e_data.sim.gl_renderer import gl_available
+from drivee2e_data.sim.gl_context import gl_available
 from drivee2e_data.sim.world import World
 from tests.factories import small_map, small_scenario
 

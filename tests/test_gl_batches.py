@@ -7,14 +7,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivee2e_data.sim import gl_batches, gl_renderer
+from drivee2e_data.sim import gl_batches, gl_context, gl_renderer
 from drivee2e_data.sim.gl_batches import (
     CELL_M,
     MERGE_GAP_VERTICES,
     DrawBatches,
     in_draw_order,
 )
-from drivee2e_data.sim.gl_renderer import gl_available, look_at, shadow_matrix
+from drivee2e_data.sim.gl_context import gl_available
+from drivee2e_data.sim.gl_renderer import look_at, shadow_matrix
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
 from drivee2e_data.sim.world import World
@@ -147,7 +148,7 @@ def test_what_a_view_skips_changes_no_pixel(site, monkeypatch):
     heading = np.array([np.cos(ego.yaw_rad[20]), np.sin(ego.yaw_rad[20]), 0.0])
     images = {}
     for cull, on_cpu in ((True, True), (True, False), (False, False)):
-        monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda on_cpu=on_cpu: on_cpu)
+        monkeypatch.setattr(gl_context, "rasterises_on_cpu", lambda on_cpu=on_cpu: on_cpu)
         monkeypatch.setenv(gl_renderer.CULL_VARIABLE, "1" if cull else "0")
         with World(intersection_map, scenario, renderer="gl") as world:
             pose_on_cpu(world)  # the models posed alike (`test_gl_posed` compares the two)
@@ -267,7 +268,7 @@ def test_walls_drawn_without_the_shadow_lookup_where_the_sun_is_behind_them_look
         Weather.CLEAR, TimeOfDay.NOON, datetime(2026, 6, 1, 4, 0, tzinfo=timezone.utc)
     )
     scenario = dataclasses.replace(scenario, conditions=noon)
-    monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda: True)  # the split is llvmpipe's
+    monkeypatch.setattr(gl_context, "rasterises_on_cpu", lambda: True)  # the split is llvmpipe's
     facades = next(k for k, (m, _) in enumerate(gl_batches.MATERIAL_GROUPS)
                    if Material.FACADE in m)  # fmt: skip
     images = {}

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from drivee2e_data.scenario import AgentClass
-from drivee2e_data.sim import gl_renderer
+from drivee2e_data.sim import gl_context
+from drivee2e_data.sim.gl_context import gl_available
 from drivee2e_data.sim.gl_posed import (
     JOINTS_PER_ROW,
     JointTable,
@@ -15,7 +16,6 @@ from drivee2e_data.sim.gl_posed import (
     joint_texels,
     model_vertices,
 )
-from drivee2e_data.sim.gl_renderer import gl_available
 from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, agent_model
 from drivee2e_data.sim.world import World
@@ -115,8 +115,8 @@ def test_a_shown_models_batch_holds_it_and_a_hidden_model_collapses_to_a_point()
                           walk_amount=1.0)  # fmt: skip
     quaternion = (0.0, 0.0, float(np.sin(0.4)), float(np.cos(0.4)))
     places = {3: (10.0, 5.0, 0.7), 9: (-20.0, 3.0, 0.85)}
-    context = gl_renderer._context()
-    with gl_renderer.current(context):
+    context = gl_context.context()
+    with gl_context.current(context):
         posed = PosedModels(context, models)
         try:
             posed.pose([(body, places[body], quaternion, animation) for body in (9, 3)])
@@ -148,7 +148,7 @@ def test_frames_posed_on_the_gpu_are_the_frames_posed_on_the_cpu(site, monkeypat
     shader's and numpy's float32 products round apart), before and after a replay; so does a
     depth-and-ids view (the labels program posed too)."""
     intersection_map, scenario = site
-    monkeypatch.setattr(gl_renderer, "rasterises_on_cpu", lambda: False)
+    monkeypatch.setattr(gl_context, "rasterises_on_cpu", lambda: False)
     frames = (5, 40, 80)
     images = {}
     for on_gpu in (True, False):

@@ -8,9 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drivee2e_data.sim import gl_renderer
+from drivee2e_data.sim import gl_context, gl_renderer
 from drivee2e_data.sim.conditions import ShaderLook
-from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
+from drivee2e_data.sim.gl_context import gl_available
+from drivee2e_data.sim.gl_renderer import GLRenderer
 from drivee2e_data.sim.gl_vertices import read_obj
 from drivee2e_data.sim.world import World
 from tests.factories import egl_world, front_view, synthetic_clip
@@ -438,7 +439,7 @@ def test_the_top_view_of_the_cameras_state_draws_the_ego_as_a_view_with_it_shown
 def shadow_map(world: World) -> bytes:
     """The sun's shadow map as the GL world holds it (read with its context current: another
     library's may be current between draws)."""
-    with gl_renderer.current(world.gl.context):
+    with gl_context.current(world.gl.context):
         return world.gl.shadow_texture.read()
 
 
@@ -446,7 +447,7 @@ def test_the_shadow_map_from_the_static_casters_copy_is_the_one_drawn_afresh(sit
     """The static casters are drawn once for a sun matrix (the focus rounded to its grid) and
     copied each frame before the moving casters: after the traffic moved, the map is the one a
     pass drawing every caster into a cleared map gives, and differs from the frame before."""
-    if gl_renderer._depth_copy() is None:
+    if gl_context.depth_copy() is None:
         pytest.skip("no glBlitFramebuffer through EGL here")
     intersection_map, scenario = site
     cast = []
@@ -460,7 +461,7 @@ def test_the_shadow_map_from_the_static_casters_copy_is_the_one_drawn_afresh(sit
         _front(world, 21, segmentation=False)  # the ego moved 1 m or less: the same grid point
         copied = shadow_map(world)
         assert cast == [("static",), ("dynamic",), ("dynamic",)]
-        monkeypatch.setattr(gl_renderer, "_depth_copy", lambda: None)
+        monkeypatch.setattr(gl_context, "depth_copy", lambda: None)
         world.gl.shadowed = None
         _front(world, 21, segmentation=False)
         afresh = shadow_map(world)

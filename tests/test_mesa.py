@@ -216,7 +216,7 @@ def _fetched() -> Path | None:
 DRAW = """
 import sys, tempfile, numpy as np
 from pathlib import Path
-from drivee2e_data.sim.gl_renderer import gl_version
+from drivee2e_data.sim.gl_context import gl_version
 from drivee2e_data.sim.world import World
 from tests.factories import front_view, synthetic_clip
 intersection_map, scenario = synthetic_clip(Path(tempfile.mkdtemp()))

@@ -11,7 +11,8 @@ from drivee2e_data.scenario import AgentClass
 from drivee2e_data.sim.actors import BLUEPRINTS, convex_parts
 from drivee2e_data.sim.animation import animation_at, track_motion
 from drivee2e_data.sim.conditions import ShaderLook
-from drivee2e_data.sim.gl_renderer import GLRenderer, gl_available
+from drivee2e_data.sim.gl_context import gl_available
+from drivee2e_data.sim.gl_renderer import GLRenderer
 from drivee2e_data.sim.gl_vertices import PlacedModel
 from drivee2e_data.sim.models import Animation, Light, agent_model, palette, pose, vehicles
 from drivee2e_data.sim.models.mesh import HIP_SWING_RAD, face_normals

@@ -23,7 +23,7 @@ from drivee2e_data.collect.runner import collect, merge_threads
 from drivee2e_data.collect.segments import WorkUnit, plan_jobs, uncovered
 from drivee2e_data.errors import DriveE2EError
 from drivee2e_data.sim.egl_devices import device_for_worker, parse_gpus
-from drivee2e_data.sim.gl_renderer import context_made
+from drivee2e_data.sim.gl_context import context_made
 
 # what the CLI makes of SMALL_COLLECT on this machine (depth LiDAR where GL works)
 SMALL = CollectOptions(image_size=(160, 90), jpeg_quality=80)
@@ -560,7 +560,7 @@ def test_pool_workers_make_their_gl_context_as_they_start(tmp_path):
     before any job; not where the cameras are finished with CUDA (which must start first), nor
     for pybullet's renderers."""
     from drivee2e_data.processes import worker_pool
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     assert runner.context_at_start(CollectOptions())  # renderer "auto", CPU post-processing
     assert runner.context_at_start(CollectOptions(renderer="gl"))
@@ -581,7 +581,7 @@ def test_pool_workers_make_their_gl_contexts_a_few_at_a_time(tmp_path):
     per GPU): with none free it waits, and takes no job, until one is."""
     from drivee2e_data.processes import worker_pool
     from drivee2e_data.sim.egl_devices import CONTEXTS_AT_ONCE_PER_GPU, contexts_at_once
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     assert contexts_at_once(()) == CONTEXTS_AT_ONCE_PER_GPU
     assert contexts_at_once((0, 1)) == 2 * CONTEXTS_AT_ONCE_PER_GPU
@@ -606,7 +606,7 @@ def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
     at once and is held until the busy one has done the same after its job (so neither takes
     two); afterwards no worker holds a context."""
     from drivee2e_data.processes import worker_pool
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     if not gl_available():
         pytest.skip("no OpenGL context can be made here")
@@ -632,9 +632,9 @@ def test_at_the_tail_each_worker_gives_its_gl_context_back_once(tmp_path):
 
 
 def test_a_context_given_back_is_made_again_and_draws_the_same(tmp_path):
-    """`gl_renderer.release_context` in a fresh process: the context is gone (and a second call
+    """`gl_context.release_context` in a fresh process: the context is gone (and a second call
     has none to give back); the next renderer makes a new one and draws the same pixels."""
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     if not gl_available():
         pytest.skip("no OpenGL context can be made here")
@@ -648,7 +648,7 @@ def test_a_context_given_back_is_made_again_and_draws_the_same(tmp_path):
 def _draw_release_draw():
     import pybullet
 
-    from drivee2e_data.sim import gl_renderer
+    from drivee2e_data.sim import gl_context, gl_renderer
     from drivee2e_data.sim.conditions import ShaderLook
 
     look = ShaderLook(
@@ -674,9 +674,9 @@ def _draw_release_draw():
         return rgb
 
     first = draw()
-    released = gl_renderer.release_context()
-    cached = gl_renderer._context.cache_info().currsize
-    again = gl_renderer.release_context()
+    released = gl_context.release_context()
+    cached = gl_context.context.cache_info().currsize
+    again = gl_context.release_context()
     second = draw()
     pybullet.disconnect(client)
     return first, released, cached, again, second

@@ -16,7 +16,8 @@ from drivee2e_data.sim.conditions import (
     headlight_raster,
 )
 from drivee2e_data.sim.gl_batches import MATERIAL_GROUPS, group_defines, in_draw_order
-from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights, current, gl_available
+from drivee2e_data.sim.gl_context import current, gl_available
+from drivee2e_data.sim.gl_renderer import GLRenderer, SceneLights
 from drivee2e_data.sim.gl_vertices import FLOATS_PER_VERTEX
 from drivee2e_data.sim.models import Material
 from drivee2e_data.sim.twin_plan import TwinMesh

@@ -31,7 +31,7 @@ from drivee2e_data.sensors.camera_gpu import POST_PROCESS_DEVICES
 from drivee2e_data.sensors.camera_gpu import check_device as check_post_process_device
 from drivee2e_data.sensors.camera_labels import DEFAULT_LABEL_SCALE
 from drivee2e_data.sensors.suite import LIDAR_METHODS
-from drivee2e_data.sim import egl_devices, gl_renderer, mesa, mesa_fetch
+from drivee2e_data.sim import egl_devices, gl_context, mesa, mesa_fetch
 from drivee2e_data.sim.world import RENDERERS
 
 
@@ -143,8 +143,8 @@ def run_mesa(args: argparse.Namespace) -> int:
             print(f"export {mesa.MESA_VARIABLE}={found.folder.resolve()}  # to use it")
         return 0
     print(mesa.describe())
-    if gl_renderer.gl_available():
-        print(f"drawn by: {gl_renderer.gl_driver()}")
+    if gl_context.gl_available():
+        print(f"drawn by: {gl_context.gl_driver()}")
     else:
         print("OpenGL: no context can be made here (moderngl over EGL)")
     return 0

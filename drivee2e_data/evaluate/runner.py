@@ -250,11 +250,11 @@ def give_back_world() -> bool:
     global _world
     if _world is None:
         return False
-    from drivee2e_data.sim import gl_renderer
+    from drivee2e_data.sim import gl_context
 
     _world.close()
     _world = None
-    gl_renderer.release_context()
+    gl_context.release_context()
     return True
 
 
@@ -312,11 +312,11 @@ def _init_worker(
 
         egl_devices.use_device(egl_devices.device_for_worker(_worker_number, gpus))
     if context_slots is not None:
-        from drivee2e_data.sim import egl_context, gl_renderer
+        from drivee2e_data.sim import egl_context, gl_context
 
         egl_context.use_priority(egl_context.Priority.LOW)
         with context_slots:
-            gl_renderer.gl_available()
+            gl_context.gl_available()
     # one thread per worker for OpenCV and torch too (llvmpipe's, OpenBLAS's and OpenMP's are
     # set for the workers by the parent, `one_thread_per_worker`): with a worker per core,
     # per-core threads only compete (a lone evaluation process keeps them all)

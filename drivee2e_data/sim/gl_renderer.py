@@ -11,26 +11,22 @@ asked for.
 
 The shaders (`sim/shaders/`, one file per pass) draw the clip's `ShaderLook`: materials, the
 sun's shadow map (one per state, shared by every view), the sky, fog, wet ground, street lamps
-and headlights; the scene shader is compiled per look (`scene_variant`). Pixels are square and
+and headlights; the scene shader is compiled per look (`gl_programs.scene_variant`). Pixels are square and
 unfiltered (no antialiasing), as with pybullet's renderers.
 """
 
 from __future__ import annotations
 
-import ctypes
 import functools
 import logging
 import os
-import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from drivee2e_data.sim import egl_context, mesa
+from drivee2e_data.sim import gl_context, gl_programs
 from drivee2e_data.sim.conditions import (
     Box,
     LampRaster,
@@ -64,7 +60,6 @@ from drivee2e_data.sim.gl_reduce import (
     NightNoise,
     ViewReduction,
     atlas,
-    noise_pool_textures,
     reduced_on_cpu,
 )
 from drivee2e_data.sim.gl_vertices import (
@@ -82,8 +77,6 @@ from drivee2e_data.sim.scenery import WearRaster
 from drivee2e_data.sim.twin_plan import TwinMesh
 
 LOG = logging.getLogger(__name__)
-SHADER_DIR = Path(__file__).with_name("shaders")
-_INCLUDE = re.compile(r'^#include "([\w.]+)"$', re.MULTILINE)
 CLEAR_RGB = (0.70, 0.78, 0.90)  # background of a view without a sky (labels)
 LOOKS = ("camera", "plain", "labels")  # weather and night; the top view's daylight; ids only
 # the colour attachments each look's shaders write, in the order of their output locations
@@ -109,179 +102,6 @@ MAX_SPOTS = 6  # the nearest vehicles' headlights light the scene (`SceneLights`
 # "1" or "0": cut the scene into cells tested per view (`cull`) or not, whatever draws it
 CULL_VARIABLE = "DRIVEE2E_GL_CULL"
 HIDDEN_BELOW_M = -50.0  # actors parked under the ground (`world.HIDDEN_Z_M`) are not drawn
-
-
-def shader_source(name: str, defines: Sequence[str] = ()) -> str:
-    """A shader file's text with `defines` after its version line and each `#include "F"` line
-    replaced by file F's text (GLSL has no includes); the fragment shaders of the sky and the
-    scene begin with common.glsl's (noise, sky colour), after `defines` (scene.frag's
-    variants)."""
-    text = _INCLUDE.sub(lambda match: (SHADER_DIR / match[1]).read_text(),
-                        (SHADER_DIR / name).read_text())  # fmt: skip
-    header = "".join(f"#define {define}\n" for define in defines)
-    if name in ("sky.frag", "scene.frag"):
-        return "#version 330\n" + header + (SHADER_DIR / "common.glsl").read_text() + text
-    version, _, rest = text.partition("\n")
-    return version + "\n" + header + rest
-
-
-def scene_variant(look: ShaderLook) -> tuple[str, ...]:
-    """The defines of the scene shader a look needs (`scene.frag`'s variants)."""
-    variant = []
-    if look.shadows:
-        variant.append("SHADOWS")
-    if look.lamps_on:  # by day (fog) the headlights' cones are lost in daylight: lamps only
-        variant.append("NIGHT")
-    if look.wetness > 0.0:
-        variant.append("WET")
-    if look.fog_density > 0.0:
-        variant.append("FOG")
-    return tuple(variant)
-
-
-@functools.cache
-def _context():
-    """The process's OpenGL context (EGL, headless), made on first use, at the priority asked
-    for (`egl_context.requested_priority`; else glcontext's); None where none can be made (no
-    moderngl, no EGL driver)."""
-    priority = egl_context.requested_priority()  # a bad value is the user's error, not "no GL"
-    try:
-        import moderngl
-
-        mesa.activate()  # a newer Mesa where one was fetched, before EGL's first call
-        with current(None):
-            if priority is not None:
-                context, given = egl_context.create(priority)
-                LOG.debug("GL context at priority %s (asked %s)", given, priority)
-                return context
-            return moderngl.create_standalone_context(backend="egl")
-    except Exception as error:  # any failure means: no GL here
-        LOG.debug("no OpenGL context: %s", error)
-        return None
-
-
-GL_READ_FRAMEBUFFER, GL_DRAW_FRAMEBUFFER = 0x8CA8, 0x8CA9
-GL_DEPTH_BUFFER_BIT, GL_NEAREST = 0x100, 0x2600
-
-
-@functools.cache
-def _depth_copy() -> Callable[[object, object, int], None] | None:
-    """A function copying the depth of one moderngl framebuffer into another's (both square, of
-    the size given) with glBlitFramebuffer, fetched through EGL (moderngl's copies take colour
-    only); None where EGL does not give it. The target is left bound."""
-    egl = egl_context.libegl()
-    if egl is None:
-        return None
-    blit_address = egl.eglGetProcAddress(b"glBlitFramebuffer")
-    bind_address = egl.eglGetProcAddress(b"glBindFramebuffer")
-    if not blit_address or not bind_address:
-        return None
-    blit = ctypes.CFUNCTYPE(None, *[ctypes.c_int] * 8, ctypes.c_uint, ctypes.c_uint)(blit_address)
-    bind = ctypes.CFUNCTYPE(None, ctypes.c_uint, ctypes.c_uint)(bind_address)
-
-    def copy(source, target, size: int) -> None:
-        bind(GL_READ_FRAMEBUFFER, source.glo)
-        bind(GL_DRAW_FRAMEBUFFER, target.glo)
-        blit(0, 0, size, size, 0, 0, size, size, GL_DEPTH_BUFFER_BIT, GL_NEAREST)
-        target.use()  # both bindings back to one framebuffer, as moderngl keeps them
-
-    return copy
-
-
-@contextmanager
-def current(context) -> Iterator[None]:
-    """`context` (a moderngl context; None: one the block makes) current for the block, and
-    whatever EGL context was current before (pybullet's EGL plugin's, in a process that has both
-    kinds of world) made current again after it: the plugin never makes its own current again,
-    and would draw into ours."""
-    egl = egl_context.libegl()
-    saved = None
-    if egl is not None and egl.eglGetCurrentContext():
-        saved = egl_context.current_egl(egl)
-    try:
-        if context is None:  # the block makes its own context (current)
-            yield
-        else:
-            with context:
-                yield
-    finally:
-        if saved is not None:
-            egl.eglMakeCurrent(*saved)
-
-
-def gl_available() -> bool:
-    """Whether an OpenGL 3.3 context can be made in this process (made once, then kept)."""
-    return _context() is not None
-
-
-def context_made() -> bool:
-    """Whether this process holds the answer of `_context` (a context, or None where none can
-    be made) since it last released one (`release_context`)."""
-    return _context.cache_info().currsize > 0
-
-
-def release_context() -> bool:
-    """Give this process's GL context back to the driver now rather than at the process's exit:
-    made current nowhere, destroyed, and its EGL display terminated, so that the driver frees
-    what it holds for the context (NVIDIA's does so one process at a time, docs/benchmarks.md).
-    Every renderer drawing with it must have been released first, and pybullet's EGL plugin (a
-    world with renderer "egl") closed: the display they may share is terminated. Its compiled
-    programs and the uniforms last set are forgotten; the next `_context()` makes a new one.
-    Returns whether there was one to release."""
-    if not context_made():
-        return False
-    context = _context()
-    _context.cache_clear()
-    _program.cache_clear()
-    _gather_program.cache_clear()
-    _noise_textures.cache_clear()
-    _UNIFORMS.clear()
-    _MEMBERS.clear()
-    _LOOKS.clear()
-    if context is None:
-        return False
-    egl = egl_context.libegl()
-    display = None
-    if egl is not None:
-        with context:
-            display = egl.eglGetCurrentDisplay()
-    context.release()  # eglDestroyContext: deferred while the context is current
-    if display:
-        egl.eglMakeCurrent(display, None, None, None)
-        egl.eglTerminate(display)
-        egl.eglReleaseThread()
-    return True
-
-
-def gl_version() -> str:
-    """The GL driver's version string (for example '4.5 (Core Profile) Mesa 25.0.7...')."""
-    context = _context()
-    return "" if context is None else str(context.info["GL_VERSION"])
-
-
-def gl_driver() -> str:
-    """What draws: the renderer and version strings, for example 'llvmpipe (LLVM 15.0.6, 256
-    bits), OpenGL 4.5 (Core Profile) Mesa 25.0.7-2~bpo12+1'; "" without a context."""
-    return f"{gl_renderer_name()}, OpenGL {gl_version()}" if gl_available() else ""
-
-
-def gl_renderer_name() -> str:
-    """The GL driver's renderer string (for example 'llvmpipe ...' or 'NVIDIA H100 ...')."""
-    context = _context()
-    return "" if context is None else str(context.info["GL_RENDERER"])
-
-
-# GL drivers that rasterise on the CPU: every vertex of a draw is shaded on the calling thread
-# there (once per view), so the models are posed once per state on the CPU, and each material
-# group gets a program of its own (llvmpipe runs every branch of a shader for every pixel)
-SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast")
-
-
-def rasterises_on_cpu() -> bool:
-    """Whether this process's GL draws on the CPU (Mesa's llvmpipe, as on a machine without a
-    GPU)."""
-    name = gl_renderer_name().lower()
-    return any(software in name for software in SOFTWARE_RENDERERS)
 
 
 def look_at(eye: NDArray[np.float64], target: NDArray[np.float64], up: NDArray[np.float64]):
@@ -359,7 +179,7 @@ class PendingView:
         self.gathered = gathered
 
     def result(self) -> tuple[NDArray[np.uint8], NDArray[np.float32], NDArray[np.int32] | None]:
-        with current(self.context):
+        with gl_context.current(self.context):
             arrays = list(self.pixels.result())
             # the depth at the pixels asked for (`GLRenderer.queue`'s `depth_at`), if gathered
             samples = self.gathered() if self.gathered is not None else None
@@ -387,7 +207,7 @@ class DepthGather:
 
     def __init__(self, context) -> None:
         self.context = context
-        self.program = _gather_program()
+        self.program = gl_programs.gather_program()
         self.capacity = 0
         self.texels = self.values = self.array = None
 
@@ -409,7 +229,7 @@ class DepthGather:
             self.array = self.context.vertex_array(self.program, [(self.texels, "2i", "texel")])
         self.texels.write(np.ascontiguousarray(texels, dtype=np.int32).tobytes())
         texture.use(location=self.TEXTURE_UNIT)
-        _set(self.program, "image", self.TEXTURE_UNIT)
+        gl_programs.set_uniform(self.program, "image", self.TEXTURE_UNIT)
         self.array.transform(self.values, moderngl.POINTS, vertices=count)
         output = self.values
 
@@ -453,17 +273,17 @@ class GLRenderer:
     ) -> None:
         import moderngl
 
-        context = _context()
+        context = gl_context.context()
         if context is None:
             raise RuntimeError("no OpenGL context can be made here (moderngl with EGL)")
         self.p, self.client, self.context = p, client, context
         self.static = frozenset(mesh.body for mesh in static_meshes)
         self.lamps = frozenset(lamps)
         self.street_lamps = np.asarray(street_lamps, dtype=np.float64).reshape(-1, 3)
-        with current(context):
-            self.labels_program = _program("scene.vert", "labels.frag")
-            self.sky_program = _program("sky.vert", "sky.frag")
-            self.shadow_program = _program("shadow.vert", "shadow.frag")
+        with gl_context.current(context):
+            self.labels_program = gl_programs.program("scene.vert", "labels.frag")
+            self.sky_program = gl_programs.program("sky.vert", "sky.frag")
+            self.shadow_program = gl_programs.program("shadow.vert", "shadow.frag")
             # cut into cells that each view tests against its frustum (None: everywhere, unless
             # CULL_VARIABLE says otherwise); drawn whole otherwise. On llvmpipe every vertex of a
             # draw is shaded on the calling thread; on an H100 or H200 only a few of the GPU's
@@ -476,10 +296,12 @@ class GLRenderer:
             # where a GPU draws, one scene program for every material (a branch on a
             # triangle's material costs it next to nothing, and a world compiles two programs
             # instead of a dozen); where the CPU does, one per material group
-            self.one_program = not rasterises_on_cpu()
+            self.one_program = not gl_context.rasterises_on_cpu()
             # llvmpipe shades every vertex of a draw on the calling thread, once per view (13
             # a collection frame): there the CPU poses the models once per state instead
-            self.poses_on_gpu = not rasterises_on_cpu() if pose_on_gpu is None else pose_on_gpu
+            self.poses_on_gpu = (
+                not gl_context.rasterises_on_cpu() if pose_on_gpu is None else pose_on_gpu
+            )
             self.static_vertices = static_vertices(static_meshes)
             self.static_anchors = static_anchors(static_meshes)
             self.static_buffer = None
@@ -492,7 +314,7 @@ class GLRenderer:
             self.sky_array = context.vertex_array(
                 self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
             )
-            self.reduction = ViewReduction(context, _program("reduce.vert", "reduce.frag"),
+            self.reduction = ViewReduction(context, gl_programs.program("reduce.vert", "reduce.frag"),
                                            self.sky_buffer)  # fmt: skip
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
@@ -507,8 +329,8 @@ class GLRenderer:
                 depth_attachment=self.static_shadow_texture
             )
             self.static_shadow_key: bytes | None = None
-            self.wear_texture = _wear_texture(context, wear)
-            self.lamp_texture = _float_texture(context, np.zeros((1, 1, 2), np.float32))
+            self.wear_texture = gl_programs.wear_texture(context, wear)
+            self.lamp_texture = gl_programs.float_texture(context, np.zeros((1, 1, 2), np.float32))
         self.lamp_light: LampRaster | None = None
         self.lit: object = None  # the state whose headlights the light texture holds
         # the light texture's values as written, and the box its beams lit (`_light_texture`)
@@ -545,16 +367,16 @@ class GLRenderer:
         self.lights_serial = 0
         self.framebuffers: dict[tuple[int, int, tuple[str, ...]], moderngl.Framebuffer] = {}
         # queued into pixel buffers on a GPU, read at once where GL draws on the CPU
-        self.readback = PixelReads(context, queued=not rasterises_on_cpu())
+        self.readback = PixelReads(context, queued=not gl_context.rasterises_on_cpu())
         # depth read at the pixels asked for (`queue`'s `depth_at`) on a GPU; where GL draws on
         # the CPU the whole image is a copy in memory, cheaper than a gather pass (0.13 against
         # 0.2 ms for ten thousand pixels of a 1600x900 view, llvmpipe)
-        self.gathers = not rasterises_on_cpu()
+        self.gathers = not gl_context.rasterises_on_cpu()
         self.gather: DepthGather | None = None
         # views area-resized on the GPU (`reduced_views`) on a GPU; where GL draws on the CPU,
         # by OpenCV from the whole view read back, as the shader does it (the shader's
         # per-texel weights cost llvmpipe 3-5% more of a closed-loop step)
-        self.reduces = not rasterises_on_cpu()
+        self.reduces = not gl_context.rasterises_on_cpu()
         info = context.info  # the largest framebuffer side: a layout of views keeps within it
         self.max_framebuffer_px = int(min(info["GL_MAX_TEXTURE_SIZE"],
                                           info["GL_MAX_RENDERBUFFER_SIZE"],
@@ -563,7 +385,7 @@ class GLRenderer:
 
     def _scene_program(self, variant: tuple[str, ...]):
         """The scene shader compiled with `variant`'s defines."""
-        return _program("scene.vert", "scene.frag", variant)
+        return gl_programs.program("scene.vert", "scene.frag", variant)
 
     def _scene_defines(self, group: int, variant: tuple[str, ...]) -> tuple[str, ...]:
         """The scene shader's defines for material group `group` in `variant`: the group's own
@@ -610,11 +432,11 @@ class GLRenderer:
         """The program of `program_key` ("shadow", "labels" or the scene's defines) compiled to
         draw the models posed on the GPU (`gl_posed`)."""
         if program_key == "shadow":
-            return _program("shadow.vert", "shadow.frag", (), ("POSED",))
+            return gl_programs.program("shadow.vert", "shadow.frag", (), ("POSED",))
         if program_key == "labels":
-            return _program("scene.vert", "labels.frag", (), ("POSED",))
+            return gl_programs.program("scene.vert", "labels.frag", (), ("POSED",))
         assert isinstance(program_key, tuple)
-        return _program("scene.vert", "scene.frag", program_key, ("POSED",))
+        return gl_programs.program("scene.vert", "scene.frag", program_key, ("POSED",))
 
     def _posed_in_use(self, program_keys: Sequence[object]) -> list:
         """The posed programs of `program_keys` where models are posed on the GPU, their joints'
@@ -624,7 +446,7 @@ class GLRenderer:
         self.posed.texture.use(location=JOINT_TEXTURE_UNIT)
         programs = [self._posed_program(key) for key in program_keys]
         for program in programs:
-            _set(program, "joints", JOINT_TEXTURE_UNIT)
+            gl_programs.set_uniform(program, "joints", JOINT_TEXTURE_UNIT)
         return programs
 
     def set_look(self, look: ShaderLook) -> None:
@@ -647,7 +469,7 @@ class GLRenderer:
         vertices, self.static_batches = in_draw_order(
             self.static_vertices, self.cull, light, self.static_anchors
         )
-        with current(self.context):
+        with gl_context.current(self.context):
             for key in [k for k in self.arrays if k[0] == "static"]:
                 self.arrays.pop(key).release()
             if self.static_buffer is not None:
@@ -678,8 +500,8 @@ class GLRenderer:
         }  # fmt: skip
         camera = tuple(float(v) for v in camera_position)
         for name, value in values.items():
-            _set(self.sky_program, name, value)
-        _set(self.sky_program, "camera_position", camera)
+            gl_programs.set_uniform(self.sky_program, name, value)
+        gl_programs.set_uniform(self.sky_program, "camera_position", camera)
         if look.lamps_on:
             raster = self._lamp_raster()
             extent = np.array(raster.values.shape[::-1], np.float64) * raster.cell_m
@@ -697,13 +519,13 @@ class GLRenderer:
         # unchanged, but thirty calls a program, a dozen programs a view, cost a millisecond)
         key = tuple(values.items())
         for program in programs:
-            if _LOOKS.get(program.glo) != key:
+            if gl_programs.LOOKS_SET.get(program.glo) != key:
                 for name, value in values.items():
-                    _set(program, name, value)
-                _LOOKS[program.glo] = key
-            _set(program, "camera_position", camera)
+                    gl_programs.set_uniform(program, name, value)
+                gl_programs.LOOKS_SET[program.glo] = key
+            gl_programs.set_uniform(program, "camera_position", camera)
             for name, matrix in matrices.items():
-                _set_matrix(program, name, matrix)
+                gl_programs.set_matrix(program, name, matrix)
 
     def _lamp_raster(self) -> LampRaster:
         """The street lamps' light (`conditions.lamp_raster`), made on the first draw that needs
@@ -734,7 +556,7 @@ class GLRenderer:
             self.light_box = add_headlights(values[..., 1], spots, raster, look.spot_reach_m)
             if self.lamp_texture.size != values.shape[1::-1]:
                 self.lamp_texture.release()
-                self.lamp_texture = _float_texture(self.context, values)
+                self.lamp_texture = gl_programs.float_texture(self.context, values)
             else:
                 self.lamp_texture.write(values.tobytes())
             self.light_values = values
@@ -756,7 +578,7 @@ class GLRenderer:
         self.placers = {}
         self.placed = {}
         if self.poses_on_gpu:
-            with current(self.context):
+            with gl_context.current(self.context):
                 if self.posed is not None:
                     for key in [k for k in self.arrays if k[0] == "posed"]:
                         self.arrays.pop(key).release()
@@ -792,7 +614,7 @@ class GLRenderer:
         casters = [self._placed(body, position, orientation, animation)
                    for body, position, orientation, animation in lights.casters
                    if body in self.models]  # fmt: skip
-        with current(self.context):
+        with gl_context.current(self.context):
             self._write_dynamic(casters)
         self.lights, self.lights_taken = lights, True
         self.lights_serial += 1
@@ -825,7 +647,7 @@ class GLRenderer:
                 if body not in self.bodies:
                     self.bodies[body] = _Body(p, client, body)
                 parts.append(self.bodies[body].vertices(p, client, body in self.lamps))
-        with current(self.context):
+        with gl_context.current(self.context):
             self._order_dynamic(parts)
             if self.posed is not None:
                 self.posed.pose(placements)
@@ -985,10 +807,10 @@ class GLRenderer:
     def _shadow_pass(self, matrix: NDArray[np.float64]) -> None:
         """The sun's depth over the focus into the shadow map (once per state): what can cast a
         shadow there (`gl_batches.NOT_CASTING` left out). The static casters' part is drawn once
-        per `matrix` into a map of its own and copied (`_depth_copy`), where GL allows."""
+        per `matrix` into a map of its own and copied (`gl_context.depth_copy`), where GL allows."""
         import moderngl
 
-        copy = _depth_copy()
+        copy = gl_context.depth_copy()
         self.context.enable(moderngl.DEPTH_TEST)
         self.context.disable(moderngl.CULL_FACE)
         for program in (self.shadow_program, *self._posed_in_use(["shadow"])):
@@ -1057,7 +879,7 @@ class GLRenderer:
         whole image elsewhere."""
         if look not in LOOKS:
             raise ValueError(f"look {look!r}: expected one of {', '.join(LOOKS)}")
-        with current(self.context):
+        with gl_context.current(self.context):
             framebuffer, outputs = self._draw(view, projection, width, height, segmentation,
                                               far_m, look, casters_drawn)  # fmt: skip
             # read into fresh arrays: writable, and no copy of bytes. Colour as the buffer holds
@@ -1140,7 +962,7 @@ class GLRenderer:
             self._draw_geometry("labels", matrix, camera_position)
         else:
             # shadows, night, wet and fog are compiled in: the variant the look needs
-            variant = scene_variant(shader_look)
+            variant = gl_programs.scene_variant(shader_look)
             if shader_look.lamps_on:
                 self._light_texture(shader_look)
             groups = {*self.dynamic_batches.group_set, *self.static_batches.group_set}
@@ -1156,7 +978,7 @@ class GLRenderer:
             rotation_only = view_matrix.copy()
             rotation_only[:3, 3] = 0.0
             inverse = np.linalg.inv(projection_matrix @ rotation_only)
-            _set_matrix(self.sky_program, "inverse_view_projection", inverse)
+            gl_programs.set_matrix(self.sky_program, "inverse_view_projection", inverse)
             self.context.enable(moderngl.DEPTH_TEST)
             self.shadow_texture.use(location=0)
             self.wear_texture.use(location=1)
@@ -1194,7 +1016,7 @@ class GLRenderer:
         colour = (Read(0, 4, "f1"),)
         # a view smaller than `size` is enlarged, by OpenCV (the shader only averages)
         enlarged = any(size[0] > width or size[1] > height for _, _, width, height in views)
-        with current(self.context):
+        with gl_context.current(self.context):
             starts = tuple(noise_starts) if noise_starts is not None else (None,) * len(views)
             if any(start is not None for start in starts) and full_size is None:
                 raise ValueError("night noise needs the cameras' full size")
@@ -1221,7 +1043,7 @@ class GLRenderer:
             target = self._framebuffer(*reduced.size, ("bgra",))
             noise = None
             if any(start is not None for start in starts):
-                noise = NightNoise(starts, tuple(full_size), _noise_textures())
+                noise = NightNoise(starts, tuple(full_size), gl_programs.noise_textures())
             self.reduction.reduce(sources, drawn, target, reduced, noise)
             (pixels,) = self.readback.read(target, colour, *reduced.size).result()
             return [reduced.view_of(pixels, k)[..., 2::-1] for k in range(len(views))]
@@ -1229,7 +1051,7 @@ class GLRenderer:
     def release(self) -> None:
         """Free the buffers and framebuffers (the context and the compiled programs stay for the
         process's next world)."""
-        with current(self.context):
+        with gl_context.current(self.context):
             self.readback.release()
             if self.gather is not None:
                 self.gather.release()
@@ -1250,92 +1072,3 @@ class GLRenderer:
                              self.wear_texture, self.lamp_texture):  # fmt: skip
                 resource.release()
         self.framebuffers = {}
-
-
-@functools.cache
-def _gather_program():
-    """`DepthGather`'s program, compiled once per process (`_program`)."""
-    return _context().program(vertex_shader=shader_source("gather.vert"), varyings=["value"])
-
-
-@functools.cache
-def _program(
-    vertex: str, fragment: str, defines: tuple[str, ...] = (), vertex_defines: tuple[str, ...] = ()
-):
-    """The program of two shader files (`defines`: the fragment shader's variant;
-    `vertex_defines` the vertex shader's), compiled once per process for its one context
-    (`_context`) and kept for every world after: each world draws with up to sixteen variants,
-    and llvmpipe takes tens of milliseconds to compile one."""
-    return _context().program(vertex_shader=shader_source(vertex, vertex_defines),
-                              fragment_shader=shader_source(fragment, defines))  # fmt: skip
-
-
-@functools.cache
-def _noise_textures() -> tuple:
-    """The night's noise pool in this process's context (`gl_reduce.noise_pool_textures`),
-    made when the first night view is reduced and kept for every world after."""
-    return noise_pool_textures(_context())
-
-
-def _wear_texture(context, wear: WearRaster | None):
-    """The ground-detail raster as a two-channel texture (wear, mottle; a blank texel without
-    one)."""
-    import moderngl
-
-    values = np.full((1, 1, 2), 128, np.uint8) if wear is None else wear.values
-    texture = context.texture(
-        (values.shape[1], values.shape[0]), 2, np.ascontiguousarray(values).tobytes()
-    )
-    texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    texture.repeat_x = texture.repeat_y = False
-    return texture
-
-
-def _float_texture(context, values: NDArray[np.float32]):
-    """A float texture of `(rows, columns, channels)` values, filtered linearly, clamped."""
-    import moderngl
-
-    rows, columns, channels = values.shape
-    texture = context.texture((columns, rows), channels, values.tobytes(), dtype="f4")
-    texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    texture.repeat_x = texture.repeat_y = False
-    return texture
-
-
-# The value each program's uniform was last given, by (program, name): a view sets some thirty
-# uniforms in each of up to eight programs, and most (the clip's look) are the same at every
-# view. Programs live as long as the process (`_program`), whichever renderer sets them.
-_UNIFORMS: dict[tuple[int, str], object] = {}
-_MEMBERS: dict[int, frozenset[str]] = {}  # program -> its uniforms' names
-_LOOKS: dict[int, tuple] = {}  # program -> the look's uniforms last set into it, as a whole
-
-
-def _members(program) -> frozenset[str]:
-    """The names of a program's uniforms (asking the program iterates over all of them)."""
-    names = _MEMBERS.get(program.glo)
-    if names is None:
-        names = _MEMBERS[program.glo] = frozenset(program)
-    return names
-
-
-def _set(program, name: str, value) -> None:
-    """A uniform's value, where the compiled program kept it (unused ones are dropped) and it
-    changed."""
-    if name not in _members(program):
-        return
-    if isinstance(value, np.ndarray):
-        value = tuple(float(v) for v in value.ravel())
-    key = (program.glo, name)
-    if _UNIFORMS.get(key) != value:
-        program[name].value = value
-        _UNIFORMS[key] = value
-
-
-def _set_matrix(program, name: str, matrix: NDArray) -> None:
-    if name not in _members(program):
-        return
-    data = np.asarray(matrix).T.astype(np.float32).tobytes()
-    key = (program.glo, name)
-    if _UNIFORMS.get(key) != data:
-        program[name].write(data)
-        _UNIFORMS[key] = data

@@ -192,9 +192,9 @@ def _verified_release(signed: bytes, source: str, keyring: Path | None) -> str:
 
 PROBE = (
     "import sys\n"
-    "from drivee2e_data.sim import gl_renderer, mesa\n"
+    "from drivee2e_data.sim import gl_context, mesa\n"
     "if mesa.activate() is None: sys.exit('not activated: ' + mesa.describe())\n"
-    "print(gl_renderer.gl_driver() or sys.exit('no GL context (moderngl over EGL)'))\n"
+    "print(gl_context.gl_driver() or sys.exit('no GL context (moderngl over EGL)'))\n"
 )
 
 

@@ -32,13 +32,8 @@ from drivee2e_data.sim import mesa, reuse
 from drivee2e_data.sim.actors import Blueprint, choose_blueprint, create_actor
 from drivee2e_data.sim.animation import TrackMotion, animation_at, track_motion
 from drivee2e_data.sim.conditions import lighting, shader_look
-from drivee2e_data.sim.gl_renderer import (
-    GLRenderer,
-    PendingView,
-    SceneLights,
-    gl_available,
-    gl_renderer_name,
-)
+from drivee2e_data.sim.gl_context import gl_available, gl_renderer_name
+from drivee2e_data.sim.gl_renderer import GLRenderer, PendingView, SceneLights
 from drivee2e_data.sim.models import LOOK_VERSION, Animation, ModelMesh, agent_model
 from drivee2e_data.sim.twin import Twin, build_twin
 from drivee2e_data.sim.twin_plan import TwinPlan

@@ -6,12 +6,12 @@ after releasing it, and without GL (the reference).
         [--modes held released early none] [--at-once K]
 
 Forks `--processes` processes; each touches 400 MB of memory and, unless its mode is "none",
-makes the collector's GL context (`gl_renderer.gl_available`, on EGL device k mod the GPUs,
+makes the collector's GL context (`gl_context.gl_available`, on EGL device k mod the GPUs,
 as `--gpus` deals them) with two 1600x900 framebuffers (RGBA, float depth) and 100 MB of
 buffers, draws and reads once, then waits. All are then told to exit at once (`os._exit`;
 "released": after moderngl's release of the context, which only asks EGL to destroy it once it
 is no longer current) and the time until the last is gone is printed, with its ratio to "none".
-"early": each gives its context back to the driver (`gl_renderer.release_context`: made current
+"early": each gives its context back to the driver (`gl_context.release_context`: made current
 nowhere, destroyed, its display terminated) as soon as it is ready, all at about the same time,
 before they are told to exit; how long that took is printed too. NVIDIA's driver tears
 contexts down one at a time, so the time grows with the processes (docs/benchmarks.md,
@@ -45,12 +45,12 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -
     context = None
     began = time.perf_counter()  # CLOCK_MONOTONIC: one clock for all processes
     if mode != "none":
-        from drivee2e_data.sim import gl_renderer
+        from drivee2e_data.sim import gl_context
 
         with slots:
-            if not gl_renderer.gl_available():
+            if not gl_context.gl_available():
                 raise SystemExit("no GL context can be made here")
-        context = gl_renderer._context()
+        context = gl_context.context()
         framebuffers = []
         for _ in range(2):
             colour = [context.renderbuffer(FRAMEBUFFER_PX, 4),
@@ -68,7 +68,7 @@ def _process(k: int, mode: str, gpus: tuple[int, ...], ready, go, made, slots) -
     released = (ready_at, ready_at)
     if mode == "early":  # given back before the others are told to exit, all at once
         del framebuffers
-        gl_renderer.release_context()
+        gl_context.release_context()
         released = (ready_at, time.perf_counter())
     made.put((began, ready_at, *released))
     ready.release()

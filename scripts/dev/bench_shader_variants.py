@@ -24,7 +24,7 @@ from drivee2e_data import store
 from drivee2e_data.sensors.camera import camera_to_world
 from drivee2e_data.sensors.ego_state import ego_motion
 from drivee2e_data.sensors.rig import default_rig
-from drivee2e_data.sim import gl_batches, gl_renderer
+from drivee2e_data.sim import gl_batches, gl_programs, gl_renderer
 from drivee2e_data.sim.world import World
 
 TRIVIAL_MAIN = "void main() { rgba = vec4(colour, 1.0); body_out = body; depth_out = eye_depth; }\n"
@@ -113,7 +113,7 @@ def main() -> None:
 
     import moderngl
 
-    original_source, original_defines = gl_renderer.shader_source, gl_renderer.group_defines
+    original_source, original_defines = gl_programs.shader_source, gl_renderer.group_defines
     chosen = {"name": "landed"}
 
     def shader_source(name: str, defines=()):  # type: ignore[no-untyped-def]
@@ -125,7 +125,7 @@ def main() -> None:
             variant = tuple(d for d in variant if d != "SHADOWS")
         return original_defines(group, variant)
 
-    gl_renderer.shader_source = shader_source
+    gl_programs.shader_source = shader_source
     gl_renderer.group_defines = group_defines
     cameras = default_rig().cameras
     scenario = store.read_scenario(args.data, args.clip)
@@ -147,8 +147,8 @@ def main() -> None:
         for _ in range(args.rounds):
             for name in names:
                 chosen["name"] = name
-                gl_renderer._program.cache_clear()  # compiled again per variant
-                gl_renderer._LOOKS.clear()
+                gl_programs.program.cache_clear()  # compiled again per variant
+                gl_programs.LOOKS_SET.clear()
                 for key in list(renderer.arrays):
                     renderer.arrays.pop(key).release()
                 filtering = moderngl.NEAREST if VARIANTS[name][3] == "nearest" else moderngl.LINEAR

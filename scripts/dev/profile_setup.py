@@ -45,7 +45,7 @@ def _worker(k: int, root: str, clips: list[str], gpus: tuple[int, ...], folder: 
     tick = time.perf_counter()
     from drivee2e_data.collect.job import CollectOptions, open_clip
     from drivee2e_data.sim import egl_devices
-    from drivee2e_data.sim.gl_renderer import gl_available
+    from drivee2e_data.sim.gl_context import gl_available
 
     times["import"] = time.perf_counter() - tick
     egl_devices.use_device(egl_devices.device_for_worker(k, gpus))

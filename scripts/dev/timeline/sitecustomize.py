@@ -23,7 +23,8 @@ WRAP = {
     "drivee2e_data.evaluate.policy_server": ["serve", "SlotReader", "start_servers"],
     "drivee2e_data.processes": ["_start_worker"],
     "drivee2e_data.sim.world": ["World", "connect", "build_twin", "World.replay"],
-    "drivee2e_data.sim.gl_renderer": ["_context", "GLRenderer"],
+    "drivee2e_data.sim.gl_context": ["context"],
+    "drivee2e_data.sim.gl_renderer": ["GLRenderer"],
     "drivee2e_data.evaluate.observation": ["SensorObserver"],
     "drivee2e_data.cli": ["main"],
 }
