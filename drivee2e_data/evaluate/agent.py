@@ -82,7 +82,10 @@ class Observation:
     pixels: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
 
     def image(self, camera: str, reduction: int = 1) -> NDArray[np.uint8]:
-        """The camera's image decoded to RGB `(H, W, 3)`, 1/`reduction` size (1, 2, 4, 8)."""
+        """The camera's image decoded to RGB `(H, W, 3)`, 1/`reduction` size (1, 2, 4, 8; a
+        reduction that does not divide the size ends in a partial block of padding: 1600x900 at
+        1/8 is 113 rows for 112.5, so resized further it is stretched by half a row; the
+        Dataset's images use `loaders.images.reduction`, which avoids that)."""
         import cv2
 
         flags = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2,

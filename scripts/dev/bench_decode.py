@@ -4,8 +4,10 @@ reduction that divides the logged size, then an area resize) beside the 1/8 redu
 the same way (what it did before 1/8 had to divide the size), and, where CUDA is present, one
 nvJPEG batch through torchvision, also resized to `--input` as `decode_batch` resizes (an area
 reduction) and as it did before (an antialiased bilinear), each against the CPU's decode (PSNR).
+Also the PSNR of the Dataset's decode and of the 1/8 one against the area reduction of the full
+image, and with `--sheet` the image where 1/8 lies farthest from it (docs/img).
 
-    python scripts/dev/bench_decode.py LOG.mcap [--input 128x72]
+    python scripts/dev/bench_decode.py LOG.mcap [--input 128x72] [--sheet PNG]
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("log")
     parser.add_argument("--input", default="128x72", help="the Dataset's image size, WxH")
+    parser.add_argument("--sheet", default=None, help="a PNG of the image where the 1/8 "
+                        "reduction lies farthest from the area reduction of the full image")  # fmt: skip
     args = parser.parse_args()
     target = tuple(int(v) for v in args.input.split("x"))
     cv2.setNumThreads(1)
@@ -86,6 +90,7 @@ def main() -> int:
             tensors, lambda js: synchronized(bilinear(js, target))
         )
     reference = next(iter(rows.values()))
+    against_area(frames, full, target, args.sheet)
     print(f"{len(frames)} frames of {len(frames[0])} JPEGs from {args.log}")
     for label, ms in rows.items():
         print(f"{label:60s} {ms:7.2f} ms/frame  {reference / ms:5.1f}x")
@@ -100,6 +105,40 @@ def main() -> int:
             print(f"{label:25s} against the CPU's decode: PSNR min {min(values):.1f}, median "
                   f"{np.median(values):.1f} dB over {len(values)} images")  # fmt: skip
     return 0
+
+
+def against_area(
+    frames: list, full: tuple[int, int], target: tuple[int, int], sheet: str | None
+) -> None:
+    """PSNR of the Dataset's decode and of the 1/8 reduction (area-resized) against the area
+    reduction of the full image, over every image; with `sheet`, the image where 1/8 lies
+    farthest: the area reduction, the Dataset's, 1/8's and 1/8's difference x4, 4x enlarged."""
+    worst, spreads = None, {"the Dataset's decode": [], "1/8 reduction, area-resized": []}
+    for jpeg in (j for js in frames for j in js):
+        buffer = np.frombuffer(jpeg, np.uint8)
+        area = cv2.resize(
+            cv2.imdecode(buffer, cv2.IMREAD_COLOR), target, interpolation=cv2.INTER_AREA
+        )
+        dataset = np.ascontiguousarray(
+            np.moveaxis(decode_cpu(jpeg, full, target), 0, -1)[..., ::-1]
+        )
+        eighth = cv2.imdecode(buffer, cv2.IMREAD_REDUCED_COLOR_8)
+        eighth = cv2.resize(eighth, target, interpolation=cv2.INTER_AREA)
+        values = [psnr(dataset, area), psnr(eighth, area)]
+        for spread, value in zip(spreads.values(), values, strict=True):
+            spread.append(value)
+        if worst is None or values[1] < worst[0]:
+            worst = (values[1], [area, dataset, eighth])
+    for label, values in spreads.items():
+        print(f"{label:30s} against the full image's area reduction: PSNR min "
+              f"{min(values):.1f}, median {np.median(values):.1f} dB")  # fmt: skip
+    if sheet and worst is not None:
+        area, dataset, eighth = worst[1]
+        difference = np.clip(4 * np.abs(eighth.astype(int) - area.astype(int)), 0, 255)
+        row = np.concatenate([area, dataset, eighth, difference.astype(np.uint8)], axis=1)
+        enlarged = cv2.resize(row, None, fx=4, fy=4, interpolation=cv2.INTER_NEAREST)
+        cv2.imwrite(sheet, enlarged, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        print(f"wrote {sheet}: 1/8 at {worst[0]:.1f} dB")
 
 
 def synchronized(images: torch.Tensor) -> torch.Tensor:
