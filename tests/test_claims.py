@@ -68,10 +68,10 @@ class _World:
 
 def test_a_worker_gives_its_world_back_once_no_clip_is_left_to_start(tmp_path, monkeypatch):
     from drivee2e_data.evaluate import runner
-    from drivee2e_data.sim import gl_renderer
+    from drivee2e_data.sim import gl_context
 
     released = []
-    monkeypatch.setattr(gl_renderer, "release_context", lambda: released.append(1) or True)
+    monkeypatch.setattr(gl_context, "release_context", lambda: released.append(1) or True)
     monkeypatch.setattr(runner, "evaluate_clip", lambda root, sid, *a: {"scenario_id": sid})
     world = _World("A")
     monkeypatch.setattr(runner, "_world", world)
