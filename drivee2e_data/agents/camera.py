@@ -249,48 +249,65 @@ def load(path: Path, network: bool = True) -> tuple[CameraPolicy | None, tuple[i
     return model, (int(width), int(height))
 
 
-class CameraAgent:
-    """The camera policy in closed loop: the front cameras as its training read them (its
-    `FEATURES`): drawn for the size its data was collected at and served at its input size
-    (`evaluate/observation.py`). The network runs on `agent_device()`, or on a policy server
-    (`model_inputs` here, `forward_batch` there)."""
+class FrontCameraAgent:
+    """A policy of the front cameras in closed loop: the cameras as its training read them
+    (`sensors`, `input_size`: its `FeatureSpec`), drawn for the size its data was collected at
+    and served at its input size (`evaluate/observation.py`); waypoints to the harness's
+    controllers. The network, read from the checkpoint by `load` (the policy, None without
+    `network`, and the camera size its data had), runs on `agent_device()`, or on a policy
+    server (`model_inputs` here, `forward_batch` there). The camera policy and TCP are two."""
 
-    name = "camera"
-    sensors = FEATURES.cameras
-    input_size = FEATURES.image_size
+    name: str
+    sensors: tuple[str, ...]
+    input_size: tuple[int, int]
 
     def __init__(self, checkpoint: Path | None = None, network: bool = True) -> None:
         if checkpoint is None:
             raise DriveE2EError(
-                "agent camera needs --checkpoint (drivee2e train camera writes one)"
+                f"agent {self.name} needs --checkpoint (drivee2e train {self.name} writes one)"
             )
-        self.model, self.image_size = load(Path(checkpoint), network)
+        self.model, self.image_size = self.load(Path(checkpoint), network)
         self.device = agent_device() if network else "cpu"
         self.runner = None
         if self.model is not None:
             self.runner = NetworkRunner(self.model.to(self.device), self.device)
+
+    @staticmethod
+    def load(path: Path, network: bool) -> tuple[nn.Module | None, tuple[int, int]]:
+        raise NotImplementedError
 
     def setup(self, route: Route, rig: Rig | None) -> None:
         del route, rig  # the target point in each observation carries the route
 
     def model_inputs(self, observation: Observation) -> dict[str, np.ndarray]:
         """One observation as the network's inputs: images `(3, 3, H, W)` uint8, vector (6,)."""
-        images, vector = observation_inputs(observation, self.image_size, INPUT_SIZE)
+        images, vector = observation_inputs(observation, self.image_size, self.input_size)
         return {"images": images[0].numpy(), "vector": vector[0].numpy()}
 
     def example_inputs(self) -> dict[str, np.ndarray]:
         """Zeros of its inputs' shapes and types (`example_inputs`)."""
-        return example_inputs(INPUT_SIZE)
+        return example_inputs(self.input_size)
 
     def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
         """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
         if self.runner is None:
-            raise DriveE2EError("this camera agent was built without its network (network=False)")
+            raise DriveE2EError(
+                f"this {self.name} agent was built without its network (network=False)"
+            )
         return self.runner.plans(inputs["images"], inputs["vector"])
 
     def act(self, observation: Observation) -> Waypoints:
         inputs = self.model_inputs(observation)
         return Waypoints(self.forward_batch({k: v[None] for k, v in inputs.items()})[0])
+
+
+class CameraAgent(FrontCameraAgent):
+    """The camera policy in closed loop (`FrontCameraAgent`)."""
+
+    name = "camera"
+    sensors = FEATURES.cameras
+    input_size = FEATURES.image_size
+    load = staticmethod(load)
 
 
 class CameraPlanner:

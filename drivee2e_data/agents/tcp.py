@@ -16,22 +16,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 
 from drivee2e_data.agents import camera, training
 from drivee2e_data.agents import checkpoint as checkpoints
 from drivee2e_data.agents.camera import FRONT_CAMERAS, PIXEL_MEAN, PIXEL_STD
-from drivee2e_data.agents.device import agent_device
-from drivee2e_data.agents.inference import NetworkRunner
 from drivee2e_data.agents.resnet import RESNET18_BLOCKS, RESNET18_WIDTH, ResNet
 from drivee2e_data.agents.training import TrainOptions, fit
-from drivee2e_data.errors import DriveE2EError
-from drivee2e_data.evaluate.agent import Observation, Route, Waypoints
 from drivee2e_data.loaders.cache import EGO_FIELDS, FeatureCache, FeatureSpec
 from drivee2e_data.loaders.dataset import DriveE2EDataset
-from drivee2e_data.sensors.rig import Rig
 
 # 256 x 144 per camera: TCP's front view is 900 x 256 over a wider field; three of ours side by
 # side are 768 x 144, a 1/6.25 scale of the 1600 x 900 cameras (a JPEG read at 1/4 in the DCT,
@@ -223,46 +217,13 @@ def load(path: Path, network: bool = True) -> tuple[TCPPolicy | None, tuple[int,
     return model, (int(width), int(height))
 
 
-class TCPAgent:
-    """The policy in closed loop: the front cameras as its training read them (its `FEATURES`:
-    drawn for the size its data was collected at, served at its input size,
-    `evaluate/observation.py`); waypoints to the harness's controllers. The network runs on
-    `agent_device()`, or on a policy server (`model_inputs` here, `forward_batch` there)."""
+class TCPAgent(camera.FrontCameraAgent):
+    """The TCP-class policy in closed loop (`camera.FrontCameraAgent`)."""
 
     name = "tcp"
     sensors = FEATURES.cameras
     input_size = FEATURES.image_size
-
-    def __init__(self, checkpoint: Path | None = None, network: bool = True) -> None:
-        if checkpoint is None:
-            raise DriveE2EError("agent tcp needs --checkpoint (drivee2e train tcp writes one)")
-        self.model, self.image_size = load(Path(checkpoint), network)
-        self.device = agent_device() if network else "cpu"
-        self.runner = None
-        if self.model is not None:
-            self.runner = NetworkRunner(self.model.to(self.device), self.device)
-
-    def setup(self, route: Route, rig: Rig | None) -> None:
-        del route, rig  # the target point in each observation carries the route
-
-    def model_inputs(self, observation: Observation) -> dict[str, np.ndarray]:
-        """One observation as the network's inputs: images `(3, 3, H, W)` uint8, vector (6,)."""
-        images, vector = camera.observation_inputs(observation, self.image_size, INPUT_SIZE)
-        return {"images": images[0].numpy(), "vector": vector[0].numpy()}
-
-    def example_inputs(self) -> dict[str, np.ndarray]:
-        """Zeros of its inputs' shapes and types (`camera.example_inputs`)."""
-        return camera.example_inputs(INPUT_SIZE)
-
-    def forward_batch(self, inputs: dict[str, np.ndarray]) -> np.ndarray:
-        """Stacked inputs to plans `(B, T, 2)` (metres, ego frame)."""
-        if self.runner is None:
-            raise DriveE2EError("this tcp agent was built without its network (network=False)")
-        return self.runner.plans(inputs["images"], inputs["vector"])
-
-    def act(self, observation: Observation) -> Waypoints:
-        inputs = self.model_inputs(observation)
-        return Waypoints(self.forward_batch({k: v[None] for k, v in inputs.items()})[0])
+    load = staticmethod(load)
 
 
 class TCPPlanner:
