@@ -367,3 +367,21 @@ def test_a_worker_given_context_slots_makes_its_context_with_one_before_any_epis
     with worker_pool(1, runner._init_worker, (context.Value("i", 0),), context) as pool:
         assert pool.submit(context_made).result(timeout=60) is False  # none without slots
         assert pool.submit(requested_priority).result(timeout=60) is None
+
+
+def test_a_probe_the_caller_built_is_not_built_again() -> None:
+    """The CLI builds the agent without its network to check the name and checkpoint; the pool
+    is laid out by that one (`runner._probe`), not by a second build."""
+    from drivee2e_data.evaluate.options import EvaluationOptions
+    from drivee2e_data.evaluate.runner import _probe
+
+    built: list[bool] = []
+
+    def factory(name: str, checkpoint: Path | None, network: bool = True) -> object:
+        built.append(network)
+        return object()
+
+    options, given = EvaluationOptions(agent="tcp"), object()
+    assert _probe(options, factory, given) is given and built == []
+    assert _probe(options, factory) is not given and built == [False]
+    assert _probe(EvaluationOptions(agent_cmd="python agent.py"), factory, given) is None

@@ -131,7 +131,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
             if row.get("status") in ("error", "agent_failed"):
                 bar.write(f"{row['scenario_id']}: {row.get('failure', '')}")
 
-        rows = runner.evaluate(args.data, clips, options, out, workers, done, registry.build)
+        rows = runner.evaluate(
+            args.data, clips, options, out, workers, done, registry.build, probe=agent
+        )
     summary = results.write_results(out, rows, options)
     print(results.markdown_table(summary), end="")
     print(f"results: {out}/ (episodes.parquet, summary.json, table.md)")

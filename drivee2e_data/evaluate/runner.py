@@ -269,9 +269,12 @@ def evaluate(
     workers: int = 1,
     on_episode: Callable[[dict[str, Any]], None] | None = None,
     agent_factory: AgentFactory | None = None,
+    probe: Any = None,
 ) -> list[dict[str, Any]]:
     """Evaluate the clips without a result yet; returns every clip's row (old and new). Agents
-    by name are built by `agent_factory` (name, checkpoint); a command needs none."""
+    by name are built by `agent_factory` (name, checkpoint); a command needs none. `probe`: the
+    agent built without its network, where the caller built one already (the CLI does, to check
+    the name and checkpoint before anything starts): a pool is laid out by it, not by another."""
     pending = prepare_run(root, out, options, scenario_ids)
     if workers <= 1 or len(pending) <= 1:
         try:
@@ -282,7 +285,7 @@ def evaluate(
         finally:
             close_process_state()
     else:
-        _run_pool(root, pending, options, out, workers, on_episode, agent_factory)
+        _run_pool(root, pending, options, out, workers, on_episode, agent_factory, probe)
     return read_rows(out, scenario_ids)
 
 
@@ -369,6 +372,7 @@ def _run_pool(
     workers: int,
     on_episode: Callable[[dict[str, Any]], None] | None,
     agent_factory: AgentFactory | None,
+    probe: Any = None,
 ) -> None:
     # the workers fork from a server that imported what they need once (started by the command's
     # entry point already, or now: its imports run while the policy servers start)
@@ -376,7 +380,7 @@ def _run_pool(
     start_server(context)
     counter = context.Value("i", 0)
     gpus = _render_gpus(options)
-    probe = _probe(options, agent_factory)
+    probe = _probe(options, agent_factory, probe)
     servers = start_servers(options, workers, agent_factory, probe, out, context)
     handles = tuple(handle for handle, _ in servers)
     slots = _context_slots(context, gpus, probe, servers)
@@ -410,11 +414,16 @@ def _render_gpus(options: EvaluationOptions) -> tuple[int, ...]:
     return egl_devices.gpu_devices()
 
 
-def _probe(options: EvaluationOptions, agent_factory: AgentFactory | None) -> Any:
-    """The run's agent built without its network (what it reads, whether it can be served);
-    None for an agent command or without a factory."""
+def _probe(
+    options: EvaluationOptions, agent_factory: AgentFactory | None, given: Any = None
+) -> Any:
+    """The run's agent built without its network (what it reads, whether it can be served):
+    `given` where the caller built it, else built here; None for an agent command or without a
+    factory."""
     if options.agent_cmd or agent_factory is None:
         return None
+    if given is not None:
+        return given
     checkpoint = Path(options.checkpoint) if options.checkpoint else None
     return _without_network(agent_factory, options.agent, checkpoint)
 
