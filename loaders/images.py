@@ -41,6 +41,26 @@ def reduction(full_size: tuple[int, int], target_size: tuple[int, int]) -> int:
     return 1
 
 
+def jpeg_size(jpeg: bytes | NDArray[np.uint8]) -> tuple[int, int]:
+    """A JPEG's (width, height) read from its frame header, without decoding it."""
+    data = bytes(jpeg)
+    position = 2  # after the start of image
+    while position + 9 <= len(data):
+        if data[position] != 0xFF:
+            break
+        marker = data[position + 1]
+        if marker == 0xFF:  # a fill byte
+            position += 1
+            continue
+        # the start-of-frame markers (baseline, progressive, ...): not C4, C8, CC
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            height = int.from_bytes(data[position + 5 : position + 7], "big")
+            width = int.from_bytes(data[position + 7 : position + 9], "big")
+            return width, height
+        position += 2 + int.from_bytes(data[position + 2 : position + 4], "big")
+    raise ValueError("not a JPEG with a frame header")
+
+
 def decode_cpu(
     jpeg: bytes | NDArray[np.uint8],
     full_size: tuple[int, int],

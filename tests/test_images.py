@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from drivee2e_data.loaders.images import area_resize, area_weights, decode_cpu, reduction
+from drivee2e_data.loaders.images import (
+    area_resize,
+    area_weights,
+    decode_cpu,
+    jpeg_size,
+    reduction,
+)
 
 
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
@@ -78,3 +84,38 @@ def test_area_resize_gives_opencvs_area_reduction(source, target) -> None:
     difference = np.abs(np.moveaxis(reduced.numpy(), 0, -1).astype(int) - expected.astype(int))
     assert difference.max() <= 1
     assert np.mean(difference > 0) < 0.01
+
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_jpeg_size_reads_the_frame_header(progressive: bool) -> None:
+    for width, height in ((1600, 900), (320, 180), (17, 5)):
+        image = np.zeros((height, width, 3), np.uint8)
+        flags = [cv2.IMWRITE_JPEG_QUALITY, 85, cv2.IMWRITE_JPEG_PROGRESSIVE, int(progressive)]
+        ok, jpeg = cv2.imencode(".jpg", image, flags)
+        assert ok and jpeg_size(jpeg.tobytes()) == (width, height)
+    with pytest.raises(ValueError, match="frame header"):
+        jpeg_size(b"\xff\xd8\xff\xd9")
+
+
+@pytest.mark.parametrize(
+    ("source", "size"),
+    [((1600, 900), (128, 72)), ((800, 450), (200, 112)), ((1600, 900), (800, 450))],
+)
+def test_an_agent_gets_the_datasets_pixels_at_its_size(source, size) -> None:
+    """`Observation.image(camera, size=)` in process and the one-file client's
+    `Message.image(camera, size=)` give the Dataset's decode to that size, to the byte."""
+    from types import SimpleNamespace
+
+    from drivee2e_data.evaluate import agent_client
+    from drivee2e_data.evaluate.agent import Observation
+
+    ok, encoded = cv2.imencode(".jpg", crosswalk(*source), [cv2.IMWRITE_JPEG_QUALITY, 85])
+    assert ok
+    jpeg = encoded.tobytes()
+    expected = np.moveaxis(decode_cpu(jpeg, source, size), 0, -1)
+    assert expected.shape == (size[1], size[0], 3)
+    in_process = Observation.image(
+        SimpleNamespace(images={"CAM_FRONT": jpeg}), "CAM_FRONT", size=size
+    )
+    client = agent_client.Message({"images": {"CAM_FRONT": jpeg}}).image("CAM_FRONT", size=size)
+    assert np.array_equal(in_process, expected) and np.array_equal(client, expected)

@@ -81,13 +81,21 @@ class Observation:
     # that size, instead of `images` (evaluate/observation.py)
     pixels: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
 
-    def image(self, camera: str, reduction: int = 1) -> NDArray[np.uint8]:
-        """The camera's image decoded to RGB `(H, W, 3)`, 1/`reduction` size (1, 2, 4, 8; a
-        reduction that does not divide the size ends in a partial block of padding: 1600x900 at
-        1/8 is 113 rows for 112.5, so resized further it is stretched by half a row; the
-        Dataset's images use `loaders.images.reduction`, which avoids that)."""
+    def image(
+        self, camera: str, reduction: int = 1, size: tuple[int, int] | None = None
+    ) -> NDArray[np.uint8]:
+        """The camera's image decoded to RGB `(H, W, 3)`: with `size` (width, height) as the
+        Dataset decodes it to that size, the area reduction of the image (the pixels a model
+        trained on `DriveE2EDataset(..., image_size=size)` read); else at 1/`reduction` size
+        (1, 2, 4, 8; a reduction that does not divide the size ends in a partial block of
+        padding: 1600x900 at 1/8 is 113 rows for 112.5)."""
         import cv2
 
+        if size is not None:
+            from drivee2e_data.loaders.images import decode_cpu, jpeg_size
+
+            jpeg = self.images[camera]
+            return np.ascontiguousarray(np.moveaxis(decode_cpu(jpeg, jpeg_size(jpeg), size), 0, -1))
         flags = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2,
                  4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}[reduction]  # fmt: skip
         bgr = cv2.imdecode(np.frombuffer(self.images[camera], np.uint8), flags)

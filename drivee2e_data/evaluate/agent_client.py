@@ -10,7 +10,8 @@ Copy this one file next to your model (it needs only the standard library and nu
         image_size = (800, 450)           # or None for 1600x900
 
         def setup(self, route, rig): ...  # route: waypoints_xy_m, commands, ...; rig: a dict
-        def act(self, observation):       # observation.images["CAM_FRONT"] is JPEG bytes
+        def act(self, observation):       # observation.images["CAM_FRONT"] is JPEG bytes;
+                                          # .image("CAM_FRONT", size=(W, H)): as the Dataset decodes
             return Waypoints(xy)          # (N, 2) ego frame at 2 Hz, or Control(steer, throttle, brake)
 
     if __name__ == "__main__":
@@ -66,17 +67,42 @@ class Message:
                 self, key, Message(value) if isinstance(value, dict) and key != "images" else value
             )
 
-    def image(self, camera: str, reduction: int = 1) -> Any:
-        """The camera's JPEG decoded to RGB at 1/`reduction` size (1, 2, 4, 8; needs OpenCV in
-        your environment). A reduction that does not divide the size ends in a partial block of
-        padding (1600x900 at 1/8: 113 rows for 112.5): to match a model trained on the
-        Dataset's images, reduce by one that divides it and resize with cv2.INTER_AREA."""
+    def image(self, camera: str, reduction: int = 1, size: tuple[int, int] | None = None) -> Any:
+        """The camera's JPEG decoded to RGB `(H, W, 3)` (needs OpenCV in your environment): with
+        `size` (width, height) as the project's Dataset decodes it to that size (the largest
+        JPEG reduction that divides the image and keeps `size`, then an area resize: the pixels
+        a model trained on `DriveE2EDataset(..., image_size=size)` read); else at 1/`reduction`
+        size (1, 2, 4, 8; one that does not divide the size ends in a partial block of padding:
+        1600x900 at 1/8 is 113 rows for 112.5)."""
         import cv2
 
+        jpeg = self.images[camera]  # type: ignore[attr-defined]
+        if size is not None:
+            width, height = _jpeg_size(jpeg)
+            fits = [r for r in (8, 4, 2) if width % r == 0 and height % r == 0
+                    and width // r >= size[0] and height // r >= size[1]]  # fmt: skip
+            reduction = fits[0] if fits else 1
         flags = {1: cv2.IMREAD_COLOR, 2: cv2.IMREAD_REDUCED_COLOR_2,
                  4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}[reduction]  # fmt: skip
-        bgr = cv2.imdecode(np.frombuffer(self.images[camera], np.uint8), flags)  # type: ignore[attr-defined]
+        bgr = cv2.imdecode(np.frombuffer(jpeg, np.uint8), flags)
+        if size is not None and (bgr.shape[1], bgr.shape[0]) != tuple(size):
+            bgr = cv2.resize(bgr, tuple(size), interpolation=cv2.INTER_AREA)
         return np.ascontiguousarray(bgr[:, :, ::-1])
+
+
+def _jpeg_size(jpeg: bytes) -> tuple[int, int]:
+    """A JPEG's (width, height) from its frame header (a start-of-frame marker, not C4/C8/CC)."""
+    position = 2
+    while position + 9 <= len(jpeg) and jpeg[position] == 0xFF:
+        marker = jpeg[position + 1]
+        if marker == 0xFF:
+            position += 1
+        elif 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            return (int.from_bytes(jpeg[position + 7 : position + 9], "big"),
+                    int.from_bytes(jpeg[position + 5 : position + 7], "big"))  # fmt: skip
+        else:
+            position += 2 + int.from_bytes(jpeg[position + 2 : position + 4], "big")
+    raise ValueError("not a JPEG with a frame header")
 
 
 def encode(document: dict[str, Any]) -> bytes:
