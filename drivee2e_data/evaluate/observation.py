@@ -7,10 +7,11 @@ Two ways to the images, chosen by what the agent declares:
   bytes as the log where the pose is the logged one).
 - `input_size` too (the size the agent's network reads, as the Dataset decodes the logged JPEG
   to it): each camera is drawn at the largest JPEG reduction of `image_size` (1/2, 1/4 or 1/8,
-  one that divides it) that keeps at least `SUPERSAMPLE` times `input_size`, area-resized to `input_size` on the
-  GPU (only the input's pixels are read back) and exposed as metered there, its noise and rain
-  made at the full size and averaged (`sensors.camera.render_reduced`): planar RGB
-  `(3, H, W)` uint8, no JPEG either way, at a fraction of the pixels.
+  one that divides it) that keeps at least `SUPERSAMPLE` times `input_size`, area-resized to
+  `input_size` on the GPU (only the input's pixels are read back) and exposed as metered
+  there, its noise and rain made at the full size and averaged
+  (`sensors.camera.render_reduced`): planar RGB `(3, H, W)` uint8, no JPEG either way, at a
+  fraction of the pixels.
   The logged image is drawn at the full size and averaged down (by the JPEG's DCT reduction
   and the Dataset's area resize), so a lane line thinner than a pixel of the input shows as a
   faint continuous line; drawn at the input size itself it would break into dashes where it

@@ -17,8 +17,8 @@ time, the gathering's.
 An agent can be served when its class offers `model_inputs(observation)` (numpy arrays of one
 observation) and `forward_batch(inputs)` (the stacked arrays to plans `(B, T, 2)` in metres,
 ego frame); `agents/camera.py` and `agents/tcp.py` do, and their `example_inputs()` (arrays of
-those shapes and types) give the server a batch to run before the first request (`warm_up`). Batched and unbatched runs of the
-network differ only in the device's arithmetic (a kernel may sum in another order for another
+those shapes and types) give the server a batch to run before the first request (`warm_up`).
+Batched and unbatched runs of the network differ only in the device's arithmetic (a kernel may sum in another order for another
 batch size: 1e-7 m here on the CPU), so the episodes are the same (tested on the CPU). A server
 runs every batch at one size, `BATCH_ROWS` whatever the number of workers (`batch_plans`: the
 requests, then copies of the first): with batches of whatever size had gathered, a plan's last

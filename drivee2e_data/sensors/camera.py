@@ -12,7 +12,6 @@ from numpy.typing import NDArray
 from drivee2e_data.sensors.rig import Camera
 from drivee2e_data.sim.conditions import (
     Exposure,
-    expose,
     exposure,
     meter,
     night_noise_start,
@@ -204,10 +203,10 @@ def render_reduced(
     reduced = world.render_reduced(views, size, NEAR_M, FAR_M, starts, full_size)
     images = {}
     for camera, rgb, seed, start in zip(cameras, reduced, seeds, starts, strict=True):
-        exposed = expose(rgb, exposure(rgb, lighting).gain)
         images[camera.name] = reduced_sensor_effects(
-            exposed, scenario.conditions, lighting, seed, full_shape, noise_added=start is not None
-        )
+            rgb, scenario.conditions, lighting, seed, full_shape,
+            gain=exposure(rgb, lighting).gain, noise_added=start is not None,
+        )  # fmt: skip
     return images
 
 

@@ -66,8 +66,8 @@ def program(
 ):
     """The program of two shader files (`defines`: the fragment shader's variant;
     `vertex_defines` the vertex shader's), compiled once per process for its one context
-    (`gl_context.context`) and kept for every world after: each world draws with up to sixteen variants,
-    and llvmpipe takes tens of milliseconds to compile one."""
+    (`gl_context.context`) and kept for every world after: each world draws with up to
+    sixteen variants, and llvmpipe takes tens of milliseconds to compile one."""
     return gl_context.context().program(
         vertex_shader=shader_source(vertex, vertex_defines),
         fragment_shader=shader_source(fragment, defines),

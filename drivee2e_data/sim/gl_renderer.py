@@ -11,8 +11,8 @@ asked for.
 
 The shaders (`sim/shaders/`, one file per pass) draw the clip's `ShaderLook`: materials, the
 sun's shadow map (one per state, shared by every view), the sky, fog, wet ground, street lamps
-and headlights; the scene shader is compiled per look (`gl_programs.scene_variant`). Pixels are square and
-unfiltered (no antialiasing), as with pybullet's renderers.
+and headlights; the scene shader is compiled per look (`gl_programs.scene_variant`). Pixels
+are square and unfiltered (no antialiasing), as with pybullet's renderers.
 """
 
 from __future__ import annotations
@@ -314,8 +314,8 @@ class GLRenderer:
             self.sky_array = context.vertex_array(
                 self.sky_program, [(self.sky_buffer, "2f", "in_corner")]
             )
-            self.reduction = ViewReduction(context, gl_programs.program("reduce.vert", "reduce.frag"),
-                                           self.sky_buffer)  # fmt: skip
+            reduce_program = gl_programs.program("reduce.vert", "reduce.frag")
+            self.reduction = ViewReduction(context, reduce_program, self.sky_buffer)
             self.shadow_texture = context.depth_texture((SHADOW_MAP_PX, SHADOW_MAP_PX))
             self.shadow_texture.compare_func = "<="
             self.shadow_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)

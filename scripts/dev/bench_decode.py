@@ -37,8 +37,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("log")
     parser.add_argument("--input", default="128x72", help="the Dataset's image size, WxH")
-    parser.add_argument("--sheet", default=None, help="a PNG of the image where the 1/8 "
-                        "reduction lies farthest from the area reduction of the full image")  # fmt: skip
+    parser.add_argument(
+        "--sheet",
+        default=None,
+        help="a PNG of the image where 1/8 lies farthest from the full image's area reduction",
+    )
     args = parser.parse_args()
     target = tuple(int(v) for v in args.input.split("x"))
     cv2.setNumThreads(1)

@@ -12,9 +12,10 @@ DATA holds scenario bundles (`drivee2e synth`). Where the steps a second stop gr
 processes, the GPU (or the cores) is the limit: a host's closed loop cannot go faster than
 that whatever the agent (docs/benchmarks.md, closed loop). `--cameras 1` draws the front camera
 alone, `--no-shadows` every clip without the sun's shadow map (what a view and the shadow pass
-cost, to find where a step's GPU time goes; no agent sees such steps); `--turns K` lets at most K processes observe at once (a semaphore around each step: whether
-fewer GL contexts submitting at a time give the GPU more steps a second). Each row gives the
-CPU time of a step too (the processes' own, `time.process_time`): where the steps slow down
+cost, to find where a step's GPU time goes; no agent sees such steps); `--turns K` lets at
+most K processes observe at once (a semaphore around each step: whether fewer GL contexts
+submitting at a time give the GPU more steps a second). Each row gives the CPU time of a step
+too (the processes' own, `time.process_time`): where the steps slow down
 with more processes but their CPU time does not grow, they wait (for the GPU); `--profile`
 prints where the first process's steps went (cProfile: the most own time, then the most
 cumulative) at each process count, to compare the functions that grow with the count.

@@ -1,7 +1,8 @@
 """What a policy server's start costs, step by step, in a process forked as the pool forks it
 (torch imported before the fork, CUDA not started): CUDA's start on the device, the agent built
-with its network there (checkpoint read, network made, moved), then its first batch (a CUDA
-graph recorded at `BATCH_ROWS` rows) and a second (replayed). Printed in seconds; the first
+with its network there (checkpoint read, network made, moved), then its first batch of the
+agent's example inputs (`policy_server.warm_up`, as a server runs before its first request: a
+CUDA graph recorded at `BATCH_ROWS` rows) and a second (replayed). Printed in seconds; the first
 batch is what the first steps of every episode wait for when the server records it at its
 first request. Reference: the same steps with CUDA started first (`--cuda-first`, default) or
 after the build (`--cuda-last`); `--profile` prints the build's cProfile (most cumulative).
@@ -20,14 +21,12 @@ import pstats
 import time
 from pathlib import Path
 
-import numpy as np
-
 
 def _steps(agent: str, checkpoint: str, device: str, cuda_first: bool, out) -> None:
     import torch
 
     from drivee2e_data.agents import registry
-    from drivee2e_data.evaluate.policy_server import AGENT_DEVICE_VARIABLE, BATCH_ROWS
+    from drivee2e_data.evaluate.policy_server import AGENT_DEVICE_VARIABLE, BATCH_ROWS, warm_up
 
     os.environ[AGENT_DEVICE_VARIABLE] = device
     times: list[tuple[str, float]] = []
@@ -53,13 +52,9 @@ def _steps(agent: str, checkpoint: str, device: str, cuda_first: bool, out) -> N
     if not cuda_first:
         torch.zeros(1, device=device)
         began = mark("CUDA started after", began)
-    width, height = built.input_size
-    generator = np.random.default_rng(0)
-    batch = {"images": generator.integers(0, 256, (BATCH_ROWS, 3, 3, height, width), np.uint8),
-             "vector": generator.standard_normal((BATCH_ROWS, 6)).astype(np.float32)}  # fmt: skip
-    built.forward_batch(batch)
+    warm_up(built, BATCH_ROWS)  # as a server does before its first request
     began = mark(f"the first batch ({BATCH_ROWS} rows: warm-up and the graph's recording)", began)
-    built.forward_batch(batch)
+    warm_up(built, BATCH_ROWS)
     mark("the second batch (replayed)", began)
     out.put((times, text.getvalue()))
 
